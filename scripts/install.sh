@@ -1,0 +1,8 @@
+#!/usr/bin/env bash
+# Install SegGrasp and its Python dependencies into the current Python 3.11 environment.
+# Two pip steps on purpose: pyrender pins PyOpenGL 3.1.0, which breaks headless OSMesa rendering;
+# asking for both in one resolve makes pip backtrack to ancient releases.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+python -m pip install -q --disable-pip-version-check -e ".[dev]"
+python -m pip install -q --disable-pip-version-check "PyOpenGL>=3.1.7"

@@ -1,0 +1,100 @@
+"""Per-face part labels: one int per face of a mesh (in the mesh file's face order) plus the part names.
+
+File formats: JSON `{"parts": [...], "face_labels": [...]}` or NPZ with arrays `parts` and `face_labels`.
+Label `k` means `parts[k]`; `-1` means unknown / no part.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from seggrasp.io import atomic_save_npz, atomic_write_text
+
+UNKNOWN = -1
+
+
+@dataclass
+class PartLabels:
+    """Part names and one label per face (-1 = unknown)."""
+
+    parts: list[str]
+    face_labels: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.parts = [str(p) for p in self.parts]
+        labels = np.asarray(self.face_labels)
+        if labels.ndim != 1:
+            raise ValueError(f"face_labels must be a 1-D array, got shape {labels.shape}")
+        if labels.size and not np.issubdtype(labels.dtype, np.integer):
+            if not np.all(np.equal(np.mod(labels, 1), 0)):
+                raise ValueError("face_labels must be integers")
+        self.face_labels = labels.astype(np.int64)
+        if len(set(self.parts)) != len(self.parts):
+            raise ValueError(f"part names must be unique, got {self.parts}")
+        bad = (self.face_labels < UNKNOWN) | (self.face_labels >= len(self.parts))
+        if bad.any():
+            raise ValueError(
+                f"face_labels has {int(bad.sum())} values outside -1..{len(self.parts) - 1} "
+                f"(first bad value {int(self.face_labels[bad][0])}) for parts {self.parts}"
+            )
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.face_labels.shape[0])
+
+    def check_faces(self, n_faces: int, what: str = "mesh") -> None:
+        """Raise ValueError unless there is exactly one label per face of a mesh with `n_faces` faces."""
+        if self.n_faces != n_faces:
+            raise ValueError(f"label file has {self.n_faces} face labels but the {what} has {n_faces} faces")
+
+    def part_index(self, name: str) -> int:
+        """Index of a part by name (case-insensitive); ValueError naming the known parts if absent."""
+        lowered = [p.lower() for p in self.parts]
+        try:
+            return lowered.index(name.strip().lower())
+        except ValueError:
+            raise ValueError(f"no part named {name!r}; parts are {self.parts}") from None
+
+    def remap_to(self, prompts: list[str]) -> np.ndarray:
+        """Face labels expressed as prompt indices: a part matches a prompt by name; others become -1."""
+        lookup = {p.lower(): i for i, p in enumerate(prompts)}
+        table = np.array([lookup.get(p.lower(), UNKNOWN) for p in self.parts] + [UNKNOWN], dtype=np.int64)
+        return table[self.face_labels]  # index -1 picks the trailing UNKNOWN
+
+    def to_json(self) -> dict:
+        return {"parts": list(self.parts), "face_labels": self.face_labels.tolist()}
+
+
+def read_labels(path: str | os.PathLike) -> PartLabels:
+    """Read a label file (.json or .npz); errors name the file and the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"label file not found: {path}")
+    try:
+        if path.suffix.lower() == ".json":
+            data = json.loads(path.read_text())
+            if not isinstance(data, dict) or "parts" not in data or "face_labels" not in data:
+                raise ValueError('expected a JSON object with keys "parts" and "face_labels"')
+            return PartLabels(list(data["parts"]), np.asarray(data["face_labels"]))
+        if path.suffix.lower() == ".npz":
+            with np.load(path, allow_pickle=False) as data:
+                return PartLabels([str(p) for p in data["parts"]], data["face_labels"])
+    except (ValueError, KeyError, json.JSONDecodeError) as exc:
+        raise ValueError(f"bad label file {path}: {exc}") from exc
+    raise ValueError(f"unsupported label file type {path.suffix!r} (use .json or .npz): {path}")
+
+
+def write_labels(path: str | os.PathLike, labels: PartLabels) -> None:
+    """Write a label file (.json or .npz) atomically."""
+    path = Path(path)
+    if path.suffix.lower() == ".json":
+        atomic_write_text(path, json.dumps(labels.to_json()) + "\n")
+    elif path.suffix.lower() == ".npz":
+        atomic_save_npz(path, parts=np.array(labels.parts), face_labels=labels.face_labels)
+    else:
+        raise ValueError(f"unsupported label file type {path.suffix!r} (use .json or .npz): {path}")
