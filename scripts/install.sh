@@ -4,5 +4,8 @@
 # asking for both in one resolve makes pip backtrack to ancient releases.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-python -m pip install -q --disable-pip-version-check -e ".[dev]"
+# torch==2.13.0 (CPU) is taken from a local wheel folder when the machine has one.
+extra=()
+[ -d /opt/wheels ] && extra=(--find-links /opt/wheels)
+python -m pip install -q --disable-pip-version-check "${extra[@]}" -e ".[dev]"
 python -m pip install -q --disable-pip-version-check "PyOpenGL>=3.1.7"
