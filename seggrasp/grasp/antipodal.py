@@ -1,0 +1,215 @@
+"""Analytic antipodal grasp sampler for a parallel gripper (no learned weights).
+
+1. Sample surface points (area-weighted, seeded) with their face normals.
+2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
+3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
+4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
+5. Reject poses whose finger or palm boxes contain object surface points (a dense, even-ish surface sample) or
+   whose boxes dip below an optional table plane.
+6. Score = weighted sum of antipodality, closeness of the grasp centre to the centre of mass and, when a table
+   plane is given, how much the approach points down onto the table (top-down grasps reach and lift best).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+
+LOG = logging.getLogger(__name__)
+
+#: Offset (metres) that moves ray origins off the surface so a ray does not hit its own face.
+RAY_EPSILON = 1e-5
+#: Grasp candidates whose collision test is evaluated in one vectorised block.
+COLLISION_CHUNK = 256
+
+
+@dataclass(frozen=True)
+class AntipodalConfig:
+    """Sampler parameters. `friction_coefficient` sets the friction-cone half-angle atan(mu)."""
+
+    n_surface_samples: int = 1000
+    n_approaches: int = 8
+    friction_coefficient: float = 0.5
+    min_width: float = 0.003
+    width_margin: float = 0.005  # contact distance must stay this far below the stroke
+    collision_point_spacing: float = 0.004
+    min_collision_points: int = 1500
+    max_collision_points: int = 6000
+    table_clearance: float = 0.005
+    weight_antipodality: float = 0.4
+    weight_center_of_mass: float = 0.4
+    weight_top_down: float = 0.2
+    max_grasps: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.friction_coefficient <= 0:
+            raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
+        if self.n_surface_samples < 1 or self.n_approaches < 1:
+            raise ValueError("n_surface_samples and n_approaches must be at least 1")
+
+
+class AntipodalSampler:
+    """`GraspGenerator` that samples antipodal, collision-free grasps on a mesh (object frame)."""
+
+    name = "antipodal"
+
+    def __init__(self, config: AntipodalConfig | None = None, gripper: GripperGeometry = ROBOTIQ_2F85) -> None:
+        self.config = config or AntipodalConfig()
+        self.gripper = gripper
+
+    def generate(
+        self,
+        mesh: trimesh.Trimesh,
+        seed: int = 0,
+        table_plane: np.ndarray | None = None,
+        center_of_mass: np.ndarray | None = None,
+    ) -> GraspSet:
+        """Antipodal grasps on `mesh` sorted best first; the same seed gives the same grasps."""
+        if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+            raise ValueError("AntipodalSampler needs a non-empty trimesh.Trimesh")
+        cfg = self.config
+        plane = _check_plane(table_plane)
+        rng = np.random.default_rng(seed)
+        normals_sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
+        face_normals = normals_sign * np.asarray(mesh.face_normals)
+
+        points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples, seed=int(rng.integers(2**31)))
+        normals = face_normals[faces]
+        p, q, n_p, n_q = _opposite_contacts(mesh, points, normals, face_normals)
+        width = np.linalg.norm(q - p, axis=1)
+        ok = (width >= cfg.min_width) & (width <= self.gripper.max_opening - cfg.width_margin)
+        axis = np.zeros_like(p)
+        axis[ok] = (q[ok] - p[ok]) / width[ok, None]
+        half_angle = float(np.arctan(cfg.friction_coefficient))
+        angle_p = np.arccos(np.clip(np.einsum("ij,ij->i", axis, -n_p), -1.0, 1.0))
+        angle_q = np.arccos(np.clip(np.einsum("ij,ij->i", axis, n_q), -1.0, 1.0))
+        ok &= (angle_p <= half_angle) & (angle_q <= half_angle)
+        if not ok.any():
+            LOG.info("antipodal sampler: no contact pair inside the friction cone")
+            return GraspSet.empty()
+        p, q, axis, width = p[ok], q[ok], axis[ok], width[ok]
+        antipodality = 1.0 - np.maximum(angle_p[ok], angle_q[ok]) / half_angle
+
+        poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng)
+        k = cfg.n_approaches
+        pair_of = np.repeat(np.arange(len(p)), k)
+        widths = width[pair_of]
+        openings = self.gripper.pre_grasp_opening(widths)
+
+        free = np.ones(len(poses), dtype=bool)
+        if plane is not None:
+            free &= self._above_plane(poses, openings, plane, cfg.table_clearance)
+        cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
+        candidates = np.flatnonzero(free)
+        free[candidates] = self._collision_free(poses[candidates], openings[candidates], cloud)
+        if not free.any():
+            LOG.info("antipodal sampler: every candidate pose collides")
+            return GraspSet.empty()
+
+        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
+        radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
+        centre_distance = np.linalg.norm(poses[:, :3, 3] - com, axis=1)
+        closeness = 1.0 - np.clip(centre_distance / radius, 0.0, 1.0)
+        score = cfg.weight_antipodality * antipodality[pair_of] + cfg.weight_center_of_mass * closeness
+        if plane is not None:
+            top_down = np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
+            score = score + cfg.weight_top_down * top_down
+        contacts = np.stack([p[pair_of], q[pair_of]], axis=1)
+        grasps = GraspSet(poses[free], widths[free], score[free], contacts[free]).sorted_by_score()
+        if cfg.max_grasps is not None:
+            grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
+        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(poses), len(grasps))
+        return grasps
+
+    def _collision_free(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+        """True where no cloud point lies inside a finger or the palm (vectorised over chunks of poses)."""
+        g = self.gripper
+        free = np.ones(len(poses), dtype=bool)
+        cloud32 = cloud.astype(np.float32)
+        tip, base = g.tip_beyond_origin, g.tip_beyond_origin - g.finger_length
+        for start in range(0, len(poses), COLLISION_CHUNK):
+            chunk = poses[start : start + COLLISION_CHUNK].astype(np.float32)
+            half = (0.5 * openings[start : start + COLLISION_CHUNK]).astype(np.float32)[:, None]
+            # cloud in each gripper frame: R^T (x - t)  ->  (G, M, 3)
+            rotations = chunk[:, :3, :3]
+            local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
+            x, y, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
+            in_finger = (x >= half) & (x <= half + g.finger_thickness) & (y <= 0.5 * g.pad_width)
+            in_finger &= (z >= base) & (z <= tip)
+            in_palm = (x <= 0.5 * g.palm_width) & (y <= 0.5 * g.palm_thickness)
+            in_palm &= (z >= base - g.palm_depth) & (z <= base)
+            free[start : start + COLLISION_CHUNK] = ~(in_finger | in_palm).any(axis=1)
+        return free
+
+    def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
+        """True where every corner of every gripper box is at least `clearance` above the plane."""
+        ok = np.ones(len(poses), dtype=bool)
+        for opening in np.unique(openings):
+            sel = openings == opening
+            boxes = self.gripper.boxes(float(opening))  # (3, 2, 3)
+            corners = np.array([[bx[i, 0], bx[j, 1], bx[k, 2]] for bx in boxes for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+            world = np.einsum("gij,mj->gmi", poses[sel, :3, :3], corners) + poses[sel, None, :3, 3]
+            heights = world @ plane[:3] + plane[3]
+            ok[sel] = heights.min(axis=1) >= clearance
+        return ok
+
+
+def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
+    if table_plane is None:
+        return None
+    plane = np.asarray(table_plane, dtype=np.float64).reshape(-1)
+    if plane.shape != (4,) or not np.isfinite(plane).all():
+        raise ValueError(f"table_plane must be 4 finite numbers (a, b, c, d), got {table_plane!r}")
+    norm = float(np.linalg.norm(plane[:3]))
+    if norm < 1e-12:
+        raise ValueError("table_plane normal (a, b, c) must not be zero")
+    return plane / norm
+
+
+def _opposite_contacts(
+    mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray, face_normals: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """First hit of a ray from each point along its inward normal: (p, q, n_p, n_q) for the rays that hit."""
+    origins = points - RAY_EPSILON * normals
+    locations, ray_index, tri_index = mesh.ray.intersects_location(origins, -normals, multiple_hits=False)
+    order = np.argsort(ray_index, kind="stable")  # the intersector's output order is not guaranteed
+    ray_index, locations, tri_index = ray_index[order], locations[order], tri_index[order]
+    return points[ray_index], locations, normals[ray_index], face_normals[tri_index]
+
+
+def _poses_around_axes(p: np.ndarray, q: np.ndarray, axis: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
+    """k poses per pair: x = grasp axis, z = approach rotated about x at evenly spaced, randomly offset angles."""
+    helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
+    u = np.cross(axis, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(axis, u)
+    offsets = rng.random(len(p))
+    angles = 2.0 * np.pi * (np.arange(k)[None, :] + offsets[:, None]) / k  # (P, k)
+    cos, sin = np.cos(angles)[..., None], np.sin(angles)[..., None]
+    z = cos * u[:, None, :] + sin * v[:, None, :]
+    x = np.broadcast_to(axis[:, None, :], z.shape)
+    y = np.cross(z, x)
+    poses = np.zeros((len(p), k, 4, 4))
+    poses[..., :3, 0], poses[..., :3, 1], poses[..., :3, 2] = x, y, z
+    poses[..., :3, 3] = (0.5 * (p + q))[:, None, :]
+    poses[..., 3, 3] = 1.0
+    return poses.reshape(-1, 4, 4)
+
+
+def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> np.ndarray:
+    """Surface points dense enough that a finger cannot sit inside the object without containing some."""
+    count = int(np.clip(mesh.area / cfg.collision_point_spacing**2, cfg.min_collision_points, cfg.max_collision_points))
+    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return points
+
+
+def _center_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Uniform-density centre of mass for a closed mesh; area-weighted surface centroid otherwise."""
+    if mesh.is_watertight and abs(mesh.volume) > 1e-12:
+        return np.asarray(mesh.center_mass, dtype=np.float64)
+    return np.asarray(mesh.triangles_center.T @ mesh.area_faces / mesh.area, dtype=np.float64)

@@ -1,0 +1,126 @@
+"""The antipodal sampler: friction cone, stroke, collision-free poses (checked independently), determinism."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from seggrasp.grasp import ROBOTIQ_2F85, AntipodalConfig, AntipodalSampler, GraspSet
+
+MU = 0.5
+TABLE = np.array([0.0, 0.0, 1.0, 0.0])  # object frame: table top at z = 0, normal up
+
+
+def _on_table(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    mesh = mesh.copy()
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    return mesh
+
+
+@pytest.fixture(scope="module", params=["box", "cylinder"])
+def object_and_grasps(request) -> tuple[trimesh.Trimesh, GraspSet]:
+    if request.param == "box":
+        mesh = _on_table(trimesh.creation.box((0.05, 0.065, 0.11)))
+    else:
+        mesh = _on_table(trimesh.creation.cylinder(radius=0.03, height=0.12, sections=48))
+    sampler = AntipodalSampler(AntipodalConfig(friction_coefficient=MU))
+    return mesh, sampler.generate(mesh, seed=3, table_plane=TABLE)
+
+
+def _box_grid(lo: np.ndarray, hi: np.ndarray, step: float = 0.004) -> np.ndarray:
+    """Points strictly inside an axis-aligned box."""
+    axes = [np.arange(a + 0.5 * step, b, step) if b - a > step else np.array([(a + b) / 2]) for a, b in zip(lo, hi)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+
+
+def test_enough_grasps_sorted_best_first(object_and_grasps) -> None:
+    _, grasps = object_and_grasps
+    assert len(grasps) >= 200
+    assert np.all(np.diff(grasps.scores) <= 0)
+
+
+def test_poses_are_rigid_and_centred_between_the_contacts(object_and_grasps) -> None:
+    _, g = object_and_grasps
+    rotations = g.poses[:, :3, :3]
+    assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-9)
+    assert np.allclose(np.linalg.det(rotations), 1.0)
+    assert np.allclose(g.poses[:, :3, 3], g.contacts.mean(axis=1), atol=1e-9)
+    closing = g.contacts[:, 1] - g.contacts[:, 0]
+    assert np.allclose(np.linalg.norm(closing, axis=1), g.widths)
+    # x axis of the gripper is the closing direction (finger to finger)
+    assert np.allclose(np.abs(np.einsum("ij,ij->i", closing / g.widths[:, None], g.poses[:, :3, 0])), 1.0, atol=1e-9)
+
+
+def test_contacts_on_surface_within_friction_cone_and_stroke(object_and_grasps) -> None:
+    mesh, g = object_and_grasps
+    flat = g.contacts.reshape(-1, 3)
+    _, distance, triangle = trimesh.proximity.closest_point(mesh, flat)
+    assert distance.max() < 1e-6
+    normals = mesh.face_normals[triangle].reshape(-1, 2, 3)
+    axis = (g.contacts[:, 1] - g.contacts[:, 0]) / g.widths[:, None]
+    half_angle = np.arctan(MU)
+    # contact 0 pushes along +axis (against its outward normal); contact 1 along -axis
+    angle_0 = np.arccos(np.clip(np.einsum("ij,ij->i", axis, -normals[:, 0]), -1, 1))
+    angle_1 = np.arccos(np.clip(np.einsum("ij,ij->i", -axis, -normals[:, 1]), -1, 1))
+    assert angle_0.max() <= half_angle + 1e-6
+    assert angle_1.max() <= half_angle + 1e-6
+    assert g.widths.max() <= ROBOTIQ_2F85.max_opening
+    assert g.widths.min() > 0
+
+
+def test_fingers_and_palm_do_not_penetrate_object_or_table(object_and_grasps) -> None:
+    mesh, g = object_and_grasps
+    rng = np.random.default_rng(0)
+    for i in rng.choice(len(g), size=25, replace=False):
+        boxes = ROBOTIQ_2F85.boxes(float(ROBOTIQ_2F85.pre_grasp_opening(g.widths[i])))
+        local = np.vstack([_box_grid(lo, hi) for lo, hi in boxes])
+        world = local @ g.poses[i, :3, :3].T + g.poses[i, :3, 3]
+        assert not mesh.contains(world).any(), f"grasp {i} penetrates the object"
+        assert world[:, 2].min() > 0.0, f"grasp {i} goes below the table"
+
+
+def test_same_seed_same_grasps_other_seed_differs() -> None:
+    mesh = _on_table(trimesh.creation.cylinder(radius=0.025, height=0.1, sections=32))
+    sampler = AntipodalSampler()
+    a = sampler.generate(mesh, seed=7, table_plane=TABLE)
+    b = sampler.generate(mesh, seed=7, table_plane=TABLE)
+    c = sampler.generate(mesh, seed=8, table_plane=TABLE)
+    assert len(a) > 0
+    for name in ("poses", "widths", "scores", "contacts"):
+        assert np.array_equal(getattr(a, name), getattr(b, name))
+    assert len(a) != len(c) or not np.allclose(a.poses, c.poses)
+
+
+def test_object_wider_than_the_stroke_has_no_grasps() -> None:
+    cube = trimesh.creation.box((0.12, 0.12, 0.12))
+    assert len(AntipodalSampler().generate(cube, seed=0)) == 0
+
+
+def test_ring_grasps_do_not_close_across_the_hole() -> None:
+    ring = _on_table(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.05, sections=64))
+    g = AntipodalSampler().generate(ring, seed=1, table_plane=TABLE)
+    assert len(g) > 0
+    # every grasp pinches the 10 mm wall, never the 80 mm outer diameter through the hole
+    assert g.widths.max() < 0.02
+
+
+def test_bad_table_plane_is_rejected() -> None:
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    with pytest.raises(ValueError, match="table_plane"):
+        AntipodalSampler().generate(box, table_plane=[0, 0, 1])
+    with pytest.raises(ValueError, match="friction_coefficient"):
+        AntipodalConfig(friction_coefficient=0.0)
+
+
+def test_graspset_transform_and_subset() -> None:
+    box = trimesh.creation.box((0.05, 0.05, 0.05))
+    g = AntipodalSampler().generate(box, seed=0)
+    T = np.eye(4)
+    T[:3, :3] = trimesh.transformations.rotation_matrix(0.7, [0, 0, 1])[:3, :3]
+    T[:3, 3] = [0.4, -0.1, 0.2]
+    moved = g.transformed(T)
+    assert np.allclose(moved.poses[:, :3, 3], moved.contacts.mean(axis=1))
+    assert np.allclose(moved.poses, T @ g.poses)
+    top = g.subset(np.arange(3))
+    assert len(top) == 3 and np.array_equal(top.scores, g.scores[:3])
+    with pytest.raises(ValueError, match="disagree"):
+        GraspSet(np.zeros((2, 4, 4)), np.zeros(3), np.zeros(2), np.zeros((2, 2, 3)))
