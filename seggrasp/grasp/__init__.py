@@ -2,6 +2,22 @@
 adapter slot and part assignment / per-prompt selection."""
 
 from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
+from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator, PointCloudGraspModel
+from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspGenerator, GraspSet, GripperGeometry
 
-__all__ = ["AntipodalConfig", "AntipodalSampler", "GraspGenerator", "GraspSet", "GripperGeometry", "ROBOTIQ_2F85"]
+__all__ = [
+    "AntipodalConfig",
+    "AntipodalSampler",
+    "GraspGenerator",
+    "GraspPrediction",
+    "GraspSet",
+    "GripperGeometry",
+    "LearnedGraspGenerator",
+    "PointCloudGraspModel",
+    "ROBOTIQ_2F85",
+    "assign_parts",
+    "contact_faces",
+    "select_on_part",
+    "select_per_prompt",
+]

@@ -1,0 +1,58 @@
+"""Part assignment and per-prompt grasp selection.
+
+A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts
+and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
+never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
+the prompted part.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+
+from seggrasp.grasp.types import GraspSet
+
+UNASSIGNED = -1
+TOP_K = 10
+
+
+def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
+    """(N, 2) index of the mesh face nearest to each contact point (contacts in the mesh's frame)."""
+    if len(grasps) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    _, _, triangle = trimesh.proximity.closest_point(mesh, grasps.contacts.reshape(-1, 3))
+    return np.asarray(triangle, dtype=np.int64).reshape(-1, 2)
+
+
+def assign_parts(grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray) -> np.ndarray:
+    """Per-grasp part label: the common label of both contacts' nearest faces, or -1 if they differ or are -1."""
+    face_labels = np.asarray(face_labels, dtype=np.int64)
+    if face_labels.shape != (len(mesh.faces),):
+        raise ValueError(f"need one label per mesh face: {len(mesh.faces)} faces, got labels of shape {face_labels.shape}")
+    labels = face_labels[contact_faces(grasps, mesh)]
+    if len(labels) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.where(labels[:, 0] == labels[:, 1], labels[:, 0], UNASSIGNED)
+
+
+def select_on_part(grasps: GraspSet, grasp_parts: np.ndarray, part: int, top_k: int = TOP_K) -> np.ndarray:
+    """Indices of the `top_k` best-scored grasps whose part is `part`, best first (ties: generation order)."""
+    grasp_parts = np.asarray(grasp_parts)
+    if grasp_parts.shape != (len(grasps),):
+        raise ValueError(f"need one part per grasp: {len(grasps)} grasps, got {grasp_parts.shape}")
+    if part < 0:
+        raise ValueError(f"part index must be >= 0, got {part}")
+    if top_k < 1:
+        raise ValueError(f"top_k must be at least 1, got {top_k}")
+    candidates = np.flatnonzero(grasp_parts == part)
+    order = np.argsort(-grasps.scores[candidates], kind="stable")
+    return candidates[order[:top_k]]
+
+
+def select_per_prompt(
+    grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray, n_prompts: int, top_k: int = TOP_K
+) -> list[np.ndarray]:
+    """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none)."""
+    parts = assign_parts(grasps, mesh, face_labels)
+    return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]

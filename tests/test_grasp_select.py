@@ -1,0 +1,91 @@
+"""Part assignment on a two-part mesh, per-prompt top-k selection and the learned-generator adapter."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from seggrasp.grasp import AntipodalSampler, GraspSet
+from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator
+from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
+
+
+@pytest.fixture(scope="module")
+def hammer() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A handle (label 0, x < 0.06) joined to a head (label 1, a wide block at x > 0.06)."""
+    handle = trimesh.creation.box((0.12, 0.025, 0.025))
+    head = trimesh.creation.box((0.03, 0.05, 0.07))
+    head.apply_translation([0.075, 0.0, 0.0])
+    mesh = trimesh.util.concatenate([handle, head])
+    labels = np.r_[np.zeros(len(handle.faces), int), np.ones(len(head.faces), int)]
+    return mesh, labels
+
+
+def test_both_contacts_decide_the_part(hammer) -> None:
+    mesh, labels = hammer
+    grasps = AntipodalSampler().generate(mesh, seed=0)
+    parts = assign_parts(grasps, mesh, labels)
+    assert set(np.unique(parts)) <= {-1, 0, 1}
+    assert (parts == 0).sum() > 20 and (parts == 1).sum() > 20
+    x = grasps.contacts[..., 0]
+    on_handle = (x < 0.06 - 1e-9).all(axis=1)
+    on_head = (x > 0.06 - 1e-9).all(axis=1)
+    assert np.all(on_handle[parts == 0])
+    assert np.all(on_head[parts == 1])
+    faces = contact_faces(grasps, mesh)
+    assert np.array_equal(parts == -1, labels[faces[:, 0]] != labels[faces[:, 1]])
+
+
+def test_straddling_grasp_is_unassigned(hammer) -> None:
+    mesh, labels = hammer
+    pose = np.eye(4)
+    # contacts: one on the handle's top face, one on the head's bottom face
+    straddle = GraspSet(pose[None], [0.05], [1.0], [[[0.0, 0.0, 0.0125], [0.075, 0.0, -0.035]]])
+    assert assign_parts(straddle, mesh, labels).tolist() == [-1]
+    unknown = labels.copy()
+    unknown[:] = -1
+    assert assign_parts(straddle, mesh, unknown).tolist() == [-1]
+
+
+def test_top_k_per_prompt_best_first(hammer) -> None:
+    mesh, labels = hammer
+    grasps = AntipodalSampler().generate(mesh, seed=1)
+    parts = assign_parts(grasps, mesh, labels)
+    chosen = select_per_prompt(grasps, mesh, labels, n_prompts=3, top_k=10)
+    assert [len(c) for c in chosen] == [10, 10, 0]
+    for k in (0, 1):
+        assert np.all(parts[chosen[k]] == k)
+        assert np.all(np.diff(grasps.scores[chosen[k]]) <= 0)
+        best_other = grasps.scores[(parts == k)].max()
+        assert grasps.scores[chosen[k][0]] == best_other
+    with pytest.raises(ValueError, match="one label per mesh face"):
+        assign_parts(grasps, mesh, labels[:-1])
+    with pytest.raises(ValueError, match="top_k"):
+        select_on_part(grasps, parts, 0, top_k=0)
+
+
+class _FixedGraspModel:
+    """Test double standing in for a network: two grasps with a base-origin convention, one contact each."""
+
+    def __init__(self, base_offset: float) -> None:
+        self.base_offset = base_offset
+        self.seen_points = 0
+
+    def predict(self, points: np.ndarray, seed: int) -> GraspPrediction:
+        self.seen_points = len(points)
+        poses = np.repeat(np.eye(4)[None], 2, axis=0)
+        poses[:, 2, 3] = [-self.base_offset, -self.base_offset + 0.01]  # base sits behind the pads along z
+        return GraspPrediction(poses, [0.04, 0.2], [0.3, 0.9], [[-0.02, 0, 0], [-0.1, 0, 0.01]])
+
+
+def test_learned_adapter_converts_frames_and_filters() -> None:
+    model = _FixedGraspModel(base_offset=0.1)
+    T_model_grasp = np.eye(4)
+    T_model_grasp[2, 3] = 0.1
+    generator = LearnedGraspGenerator(model, n_points=500, T_model_grasp=T_model_grasp)
+    grasps = generator.generate(trimesh.creation.box((0.04, 0.04, 0.04)), seed=0)
+    assert model.seen_points == 500
+    assert len(grasps) == 1  # the 0.2 m wide proposal exceeds the 85 mm stroke
+    assert np.allclose(grasps.poses[0, :3, 3], 0.0)
+    assert np.allclose(grasps.contacts[0], [[-0.02, 0, 0], [0.02, 0, 0]])
+    with pytest.raises(ValueError, match="predict"):
+        LearnedGraspGenerator(object())
