@@ -1,7 +1,7 @@
 """Grasp containers, the parallel-gripper geometry and the `GraspGenerator` protocol.
 
 Gripper frame (DESIGN.md): z = approach direction, x = closing direction (finger to finger), origin between the
-fingertip pads, i.e. at the midpoint of the two contact points of an antipodal grasp.
+pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two contact points of an antipodal grasp.
 """
 
 from __future__ import annotations
@@ -17,10 +17,10 @@ import trimesh
 class GripperGeometry:
     """Box model of a parallel gripper for collision checks, in the gripper frame (metres).
 
-    Defaults are the Robotiq 2F-85: 85 mm stroke, pads ~20 mm wide (y) and ~40 mm long (z). The pads' centres sit
-    at the origin's height minus `pad_length / 2 - tip_beyond_origin`, so the fingertips reach `tip_beyond_origin`
-    past the contacts along +z. Each finger is a box of `finger_thickness` (x) x `pad_width` (y) x `finger_length`
-    (z) just outside the pre-grasp opening; the palm (plus the wrist behind it) is one box below the fingers.
+    Defaults are the Robotiq 2F-85: 85 mm stroke, pads ~20 mm wide (y) and ~40 mm long (z). The origin is between
+    the pad centres, so the fingertips reach `tip_beyond_origin` (half a pad) past the contacts along +z. Each
+    finger is a box of `finger_thickness` (x) x `pad_width` (y) x `finger_length` (z) just outside the pre-grasp
+    opening; the palm (plus the wrist behind it) is one box below the fingers.
     """
 
     max_opening: float = 0.085
@@ -28,7 +28,7 @@ class GripperGeometry:
     pad_length: float = 0.040
     finger_thickness: float = 0.012
     finger_length: float = 0.055
-    tip_beyond_origin: float = 0.010
+    tip_beyond_origin: float = 0.020
     palm_width: float = 0.12  # x
     palm_thickness: float = 0.065  # y
     palm_depth: float = 0.10  # z, palm + coupling + wrist stub
