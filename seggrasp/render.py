@@ -1,0 +1,236 @@
+"""Camera rig and offscreen rendering: a shaded RGB image for the detector and an exact face-id buffer per view.
+
+Rig. The mesh is first mapped into the unit sphere (`seggrasp.mesh.unit_normalisation`). Cameras sit on a sphere of
+radius `CAMERA_DISTANCE` = 3 looking at the origin, with a vertical field of view that just fits the unit sphere
+(plus a margin), so the whole object is always in frame. SATR puts cameras at radius 2 and draws its views around
+the front of the object; objects to be grasped have no canonical front but do have an up (+z, the table normal),
+so this rig instead spreads the views evenly over a band of the sphere with a spherical Fibonacci lattice: equal
+steps in sin(elevation) from -17 deg to +72 deg (about three quarters of the views look from above the equator,
+none from straight below the table and none straight down, where "up" in the image is undefined) and golden-angle
+steps in azimuth, so any number of views covers all sides. The seed only turns the whole rig about z. Radius 3
+instead of 2 gives less perspective distortion at the same framing.
+
+Face ids. Faces are drawn with three private vertices each, unlit (`RenderFlags.FLAT`), coloured with their index
++ 1 in 24-bit RGB; background is 0 -> id -1. With OSMesa (the default platform here) pyrender draws straight into
+the single-sampled OSMesa buffer. On platforms with framebuffer objects (EGL, pyglet) pyrender renders through a 4x
+multisampled framebuffer and resolves it by averaging, which would blend the colours of neighbouring faces at shared
+edges; there the renderer re-allocates pyrender's multisample renderbuffers with a single sample (pyrender 0.1.45
+internals `_main_cb_ms`/`_main_db_ms`). Either way every pixel is the one face that covers its centre - what a ray
+through the pixel centre hits (tests/test_render.py checks this against trimesh ray casting).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+import numpy as np  # noqa: E402
+import pyrender  # noqa: E402
+import trimesh  # noqa: E402
+from OpenGL import GL  # noqa: E402
+
+from seggrasp.mesh import unit_normalisation  # noqa: E402
+from seggrasp.views import View  # noqa: E402
+
+logger = logging.getLogger(__name__)
+
+#: Distance of every camera from the centre of the unit-normalised mesh.
+CAMERA_DISTANCE = 3.0
+#: Extra field of view (radians) beyond the angle the unit sphere subtends, so silhouettes never touch the border.
+FOV_MARGIN = math.radians(4.0)
+#: The band of the view sphere the rig covers, as sin(elevation): about -17 deg to +72 deg.
+MIN_SIN_ELEVATION = -0.3
+MAX_SIN_ELEVATION = 0.95
+DEFAULT_IMAGE_SIZE = 512
+#: Shaded image: light grey, slightly rough material under a head light plus ambient light, white background.
+SURFACE_COLOUR = (0.62, 0.62, 0.62, 1.0)
+BACKGROUND_COLOUR = (1.0, 1.0, 1.0, 1.0)
+AMBIENT_LIGHT = 0.3
+HEADLIGHT_INTENSITY = 2.0
+#: The key light shines from the camera, tilted this far towards the image top so that shapes read in 3-D.
+HEADLIGHT_TILT = math.radians(35.0)
+MAX_FACES = 2**24 - 2  # face ids + 1 must fit 24 bits of RGB
+
+#: OpenCV camera (x right, y down, z forward) -> OpenGL camera (x right, y up, z backward).
+_CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
+#: Pose of the key light in the OpenGL camera frame (it shines along its -z): turned about x towards image-up.
+_HEADLIGHT_IN_GL_CAMERA = np.eye(4)
+_HEADLIGHT_IN_GL_CAMERA[1:3, 1:3] = [[math.cos(HEADLIGHT_TILT), -math.sin(HEADLIGHT_TILT)],
+                                     [math.sin(HEADLIGHT_TILT), math.cos(HEADLIGHT_TILT)]]
+
+
+def field_of_view(distance: float = CAMERA_DISTANCE) -> float:
+    """Vertical (= horizontal) field of view in radians that frames the unit sphere from `distance`."""
+    return 2.0 * math.asin(1.0 / distance) + FOV_MARGIN
+
+
+def intrinsics(image_size: int, distance: float = CAMERA_DISTANCE) -> np.ndarray:
+    """3x3 pinhole matrix of the rig's square images; the principal point is the image centre."""
+    focal = 0.5 * image_size / math.tan(0.5 * field_of_view(distance))
+    centre = 0.5 * image_size
+    return np.array([[focal, 0.0, centre], [0.0, focal, centre], [0.0, 0.0, 1.0]])
+
+
+def look_at(position: np.ndarray, target: np.ndarray | None = None, up: np.ndarray | None = None) -> np.ndarray:
+    """T_world_cam (OpenCV axes) of a camera at `position` looking at `target` with image-up towards `up`."""
+    position = np.asarray(position, dtype=float)
+    target = np.zeros(3) if target is None else np.asarray(target, dtype=float)
+    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
+    forward = target - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError("camera looks along its up vector; choose another up")
+    right /= np.linalg.norm(right)
+    down = np.cross(forward, right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, position
+    return pose
+
+
+def camera_rig(n_views: int = 10, seed: int = 0, distance: float = CAMERA_DISTANCE) -> list[np.ndarray]:
+    """Camera poses T_world_cam around the unit-normalised mesh (see the module docstring for the layout)."""
+    if n_views < 1:
+        raise ValueError(f"n_views must be at least 1, got {n_views}")
+    if distance <= 1.0:
+        raise ValueError(f"cameras must be outside the unit sphere, got distance {distance}")
+    rng = np.random.default_rng(seed)
+    azimuth_offset = rng.uniform(0.0, 2.0 * math.pi)
+    golden_angle = math.pi * (3.0 - math.sqrt(5.0))
+    poses = []
+    for k in range(n_views):
+        sin_elevation = MIN_SIN_ELEVATION + (k + 0.5) / n_views * (MAX_SIN_ELEVATION - MIN_SIN_ELEVATION)
+        cos_elevation = math.sqrt(1.0 - sin_elevation**2)
+        azimuth = azimuth_offset + k * golden_angle
+        direction = np.array([cos_elevation * math.cos(azimuth), cos_elevation * math.sin(azimuth), sin_elevation])
+        poses.append(look_at(distance * direction))
+    return poses
+
+
+def encode_face_colours(n_faces: int) -> np.ndarray:
+    """(n_faces, 4) uint8 RGBA colours carrying face index + 1 in R (low byte), G, B (high byte)."""
+    if n_faces > MAX_FACES:
+        raise ValueError(f"mesh has {n_faces} faces; the face-id buffer holds at most {MAX_FACES}")
+    code = np.arange(1, n_faces + 1, dtype=np.int64)
+    colours = np.empty((n_faces, 4), dtype=np.uint8)
+    colours[:, 0] = code & 0xFF
+    colours[:, 1] = (code >> 8) & 0xFF
+    colours[:, 2] = (code >> 16) & 0xFF
+    colours[:, 3] = 255
+    return colours
+
+
+def decode_face_ids(rgb: np.ndarray) -> np.ndarray:
+    """Inverse of `encode_face_colours` on a rendered (H, W, 3) image: face index per pixel, -1 for background."""
+    rgb = rgb.astype(np.int64)
+    return rgb[..., 0] + (rgb[..., 1] << 8) + (rgb[..., 2] << 16) - 1
+
+
+class ViewRenderer:
+    """An offscreen pyrender renderer of one image size, reused across meshes and views (OSMesa context)."""
+
+    def __init__(self, image_size: int = DEFAULT_IMAGE_SIZE, distance: float = CAMERA_DISTANCE) -> None:
+        if image_size < 8:
+            raise ValueError(f"image_size must be at least 8 pixels, got {image_size}")
+        self.image_size = int(image_size)
+        self.distance = float(distance)
+        self.K = intrinsics(self.image_size, self.distance)
+        self._renderer = pyrender.OffscreenRenderer(self.image_size, self.image_size)
+        self._single_sampled = False
+
+    def close(self) -> None:
+        """Release the GL context."""
+        self._renderer.delete()
+
+    def _make_single_sampled(self) -> None:
+        """Give pyrender's multisample renderbuffers one sample so face colours are never blended."""
+        self._single_sampled = True
+        platform = self._renderer._platform
+        if not platform.supports_framebuffers():  # OSMesa: no multisample framebuffer in the first place
+            return
+        inner = self._renderer._renderer
+        platform.make_current()
+        inner._configure_main_framebuffer()
+        size = self.image_size
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, inner._main_cb_ms)
+        GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 0, GL.GL_RGBA, size, size)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, inner._main_db_ms)
+        GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, 0, GL.GL_DEPTH_COMPONENT24, size, size)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, 0)
+        platform.make_uncurrent()
+
+    def render(self, mesh: trimesh.Trimesh, poses: list[np.ndarray]) -> list[View]:
+        """Render `mesh` (mapped into the unit sphere) from every pose; one `View` per pose."""
+        if len(mesh.faces) == 0:
+            raise ValueError("cannot render a mesh without faces")
+        if not self._single_sampled:
+            self._make_single_sampled()
+        poses = [np.asarray(pose, dtype=float) for pose in poses]
+        for pose in poses:
+            if pose.shape != (4, 4):
+                raise ValueError(f"camera poses must be 4x4 matrices, got shape {pose.shape}")
+        distances = [float(np.linalg.norm(pose[:3, 3])) for pose in poses]
+        if poses and min(distances) <= 1.0:
+            raise ValueError(f"every camera must be outside the unit sphere; one is at distance {min(distances):.3g}")
+        normalised = mesh.copy()
+        normalised.apply_transform(unit_normalisation(mesh))
+        znear = max(min(distances, default=self.distance) - 1.05, 0.01)
+        zfar = max(distances, default=self.distance) + 1.05
+        shaded_scene, id_scene, camera_nodes, light_node = self._build_scenes(normalised, znear, zfar)
+
+        views = []
+        for pose in poses:
+            gl_pose = pose @ _CV_TO_GL
+            shaded_scene.set_pose(camera_nodes[0], gl_pose)
+            shaded_scene.set_pose(light_node, gl_pose @ _HEADLIGHT_IN_GL_CAMERA)
+            id_scene.set_pose(camera_nodes[1], gl_pose)
+            rgb, _ = self._renderer.render(shaded_scene)
+            id_rgb, _ = self._renderer.render(id_scene, flags=pyrender.RenderFlags.FLAT)
+            views.append(View(rgb=np.ascontiguousarray(rgb[..., :3]), face_ids=decode_face_ids(id_rgb[..., :3]),
+                              K=self.K.copy(), T_world_cam=pose.copy()))
+        logger.debug("rendered %d views of %d faces at %d px", len(views), len(mesh.faces), self.image_size)
+        return views
+
+    def _build_scenes(self, mesh: trimesh.Trimesh, znear: float, zfar: float):
+        fov = field_of_view(self.distance)
+
+        material = pyrender.MetallicRoughnessMaterial(baseColorFactor=SURFACE_COLOUR, metallicFactor=0.0,
+                                                      roughnessFactor=0.8, doubleSided=True)
+        shaded_scene = pyrender.Scene(bg_color=BACKGROUND_COLOUR, ambient_light=np.full(3, AMBIENT_LIGHT))
+        shaded_scene.add(pyrender.Mesh.from_trimesh(mesh, material=material, smooth=False))
+        shaded_camera = shaded_scene.add(pyrender.PerspectiveCamera(yfov=fov, znear=znear, zfar=zfar))
+        light = shaded_scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=HEADLIGHT_INTENSITY))
+
+        triangles = np.asarray(mesh.triangles, dtype=np.float32).reshape(-1, 3)
+        colours = np.repeat(encode_face_colours(len(mesh.faces)), 3, axis=0)
+        primitive = pyrender.Primitive(
+            positions=triangles, indices=np.arange(len(triangles), dtype=np.uint32).reshape(-1, 3),
+            color_0=colours.astype(np.float32) / 255.0, mode=pyrender.constants.GLTF.TRIANGLES,
+            material=pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), doubleSided=True),
+        )
+        id_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=np.zeros(3))
+        id_scene.add(pyrender.Mesh([primitive]))
+        id_camera = id_scene.add(pyrender.PerspectiveCamera(yfov=fov, znear=znear, zfar=zfar))
+        return shaded_scene, id_scene, (shaded_camera, id_camera), light
+
+
+_shared_renderers: dict[tuple[int, int, float], ViewRenderer] = {}
+_shared_lock = threading.Lock()
+
+
+def render_views(mesh: trimesh.Trimesh, poses: list[np.ndarray], image_size: int = DEFAULT_IMAGE_SIZE) -> list[View]:
+    """Render RGB images and exact face-id buffers of `mesh` after `unit_normalisation`, one `View` per pose.
+
+    Poses are T_world_cam (OpenCV) in the unit-normalised frame, e.g. from `camera_rig`. The offscreen renderer of
+    each image size is created once per thread and reused.
+    """
+    key = (threading.get_ident(), int(image_size), CAMERA_DISTANCE)
+    with _shared_lock:
+        renderer = _shared_renderers.get(key)
+        if renderer is None:
+            renderer = _shared_renderers[key] = ViewRenderer(image_size)
+    return renderer.render(mesh, poses)
