@@ -1,0 +1,286 @@
+"""The Robotiq 2F-85: its six-bar linkage as one actuated joint plus gear constraints, and a floating gripper.
+
+The description (assets/robots/) has the linkage opened into a tree: `finger_joint` (left outer knuckle) is the
+actuated joint; the right outer knuckle and both inner knuckles turn with it (multiplier +1) and both inner
+fingers counter-rotate (multiplier -1), which keeps the pads parallel. Before every physics step each follower is
+servoed (stiff position control) to its multiple of the current `finger_joint` angle, so the fingers stay symmetric
+under load: measured < 1 mm while holding a box, where PyBullet gear constraints (erp 0.2-1, maxForce up to 1e4)
+let the loaded finger lag by 9-12 mm. Closing is velocity control with a torque limit on `finger_joint` (the grip
+force), stopped when the finger stalls; the followers only copy its angle.
+
+Gripper frame (DESIGN.md): z = approach, x = closing direction, origin between the pad centres. The pad centres'
+height above the gripper base depends on the opening (the fingers swing on an arc), so `T_base_tcp(width)` gives
+the frame for the width at which the pads will meet the object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet
+
+from sim.world import PATH_RESOLUTION, World, linear_poses, pose_to_pb
+
+
+FINGER_JOINT = "finger_joint"
+#: Followers of `finger_joint` and their multipliers (the 2F-85's mimic joints).
+MIMIC_JOINTS = {
+    "right_outer_knuckle_joint": 1.0,
+    "left_inner_knuckle_joint": 1.0,
+    "right_inner_knuckle_joint": 1.0,
+    "left_inner_finger_joint": -1.0,
+    "right_inner_finger_joint": -1.0,
+}
+PAD_LINKS = ("left_inner_finger_pad", "right_inner_finger_pad")
+PAD_THICKNESS = 0.00635
+FINGER_JOINT_MAX = 0.8
+#: Datasheet: 85 mm stroke.
+MAX_WIDTH = 0.085
+#: Pad friction (silicone-like pads), and a little torsional and rolling friction.
+PAD_FRICTION = 1.0
+PAD_SPINNING_FRICTION = 0.002
+PAD_ROLLING_FRICTION = 0.0001
+
+
+@dataclass(frozen=True)
+class GripperSettings:
+    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 2.5 N m squeezes with ~30 N,
+    inside the 2F-85's 20-235 N), the followers' servo force, and stall detection."""
+
+    closing_speed: float = 1.5
+    closing_torque: float = 2.5
+    opening_speed: float = 3.0
+    stall_travel: float = 0.004  # rad over `stall_steps` steps: the finger has stalled
+    stall_steps: int = 8
+    follower_force: float = 50.0
+    follower_gain: float = 1.0
+
+
+class Robotiq2F85:
+    """Drives the 2F-85 joints of a body (the floating gripper or the arm with the gripper on its flange)."""
+
+    def __init__(self, world: World, body: int, base_link: int, settings: GripperSettings | None = None) -> None:
+        self.world = world
+        self.body = body
+        self.base_link = base_link
+        self.settings = settings or GripperSettings()
+        c = world.client
+        names = {c.getJointInfo(body, j)[1].decode(): j for j in range(c.getNumJoints(body))}
+        links = {c.getJointInfo(body, j)[12].decode(): j for j in range(c.getNumJoints(body))}
+        self.finger_joint = names[FINGER_JOINT]
+        self.mimic = {names[n]: m for n, m in MIMIC_JOINTS.items()}
+        self.pad_links = tuple(links[n] for n in PAD_LINKS)
+        self.finger_links = tuple(
+            j for name, j in links.items() if any(k in name for k in ("knuckle", "finger"))
+        )
+        world.pre_step_hooks.append(self._servo_followers)
+        for link in self.pad_links:
+            c.changeDynamics(
+                body, link, lateralFriction=PAD_FRICTION, spinningFriction=PAD_SPINNING_FRICTION,
+                rollingFriction=PAD_ROLLING_FRICTION, frictionAnchor=1,
+            )
+        self._calibrate()
+
+    def _servo_followers(self) -> None:
+        """Mimic joints: before every physics step, drive each follower to its multiple of the finger angle."""
+        c = self.world.client
+        angle = c.getJointState(self.body, self.finger_joint)[0]
+        joints = list(self.mimic)
+        c.setJointMotorControlArray(
+            self.body, joints, pybullet.POSITION_CONTROL, targetPositions=[self.mimic[j] * angle for j in joints],
+            forces=[self.settings.follower_force] * len(joints), positionGains=[self.settings.follower_gain] * len(joints),
+        )
+
+    # --- geometry -------------------------------------------------------------------------------------------
+
+    def _calibrate(self) -> None:
+        """Tabulate pad gap and pad-centre height over the finger angle by forward kinematics."""
+        angles = np.linspace(0.0, FINGER_JOINT_MAX, 33)
+        saved = self.joint_positions()
+        gaps, heights = [], []
+        T_base_world = np.linalg.inv(self.world.link_pose(self.body, self.base_link))
+        for angle in angles:
+            self.set_angle(angle)
+            left, right = (T_base_world @ self.world.link_pose(self.body, link) for link in self.pad_links)
+            gaps.append(np.linalg.norm(left[:3, 3] - right[:3, 3]) - PAD_THICKNESS)
+            heights.append(0.5 * (left[2, 3] + right[2, 3]))
+        self._restore(saved)
+        self._angles = angles
+        self._gaps = np.asarray(gaps)  # decreasing with the angle
+        self._heights = np.asarray(heights)
+
+    def angle_for_width(self, width: float) -> float:
+        """Finger angle whose pad gap is `width` (clipped to the stroke)."""
+        width = float(np.clip(width, self._gaps[-1], self._gaps[0]))
+        return float(np.interp(width, self._gaps[::-1], self._angles[::-1]))
+
+    def width_for_angle(self, angle: float) -> float:
+        return float(np.interp(angle, self._angles, self._gaps))
+
+    @property
+    def max_width(self) -> float:
+        return float(self._gaps[0])
+
+    def T_base_tcp(self, width: float) -> np.ndarray:
+        """Gripper base -> TCP (between the pad centres) when the gripper is opened to `width`."""
+        T = np.eye(4)
+        T[2, 3] = float(np.interp(self.angle_for_width(width), self._angles, self._heights))
+        return T
+
+    # --- state ------------------------------------------------------------------------------------------------
+
+    def joint_positions(self) -> dict[int, float]:
+        c = self.world.client
+        return {j: c.getJointState(self.body, j)[0] for j in (self.finger_joint, *self.mimic)}
+
+    def _restore(self, positions: dict[int, float]) -> None:
+        for joint, value in positions.items():
+            self.world.client.resetJointState(self.body, joint, value)
+
+    def set_angle(self, angle: float) -> None:
+        """Place the linkage at a finger angle instantly (no physics); used at reset and for calibration."""
+        c = self.world.client
+        c.resetJointState(self.body, self.finger_joint, angle)
+        for joint, multiplier in self.mimic.items():
+            c.resetJointState(self.body, joint, multiplier * angle)
+        c.setJointMotorControl2(
+            self.body, self.finger_joint, pybullet.POSITION_CONTROL, targetPosition=angle,
+            force=self.settings.closing_torque * 4,
+        )
+
+    def set_width(self, width: float) -> None:
+        self.set_angle(self.angle_for_width(width))
+
+    def angle(self) -> float:
+        return float(self.world.client.getJointState(self.body, self.finger_joint)[0])
+
+    def width(self) -> float:
+        """Current pad gap in metres."""
+        return self.width_for_angle(self.angle())
+
+    def finger_asymmetry(self) -> float:
+        """Distance (m) between the two pad centres' offsets from the gripper's centre plane, i.e. how far the
+        fingers are from mirror symmetry about the base's y-z plane."""
+        T_base_world = np.linalg.inv(self.world.link_pose(self.body, self.base_link))
+        left, right = (T_base_world @ self.world.link_pose(self.body, link) for link in self.pad_links)
+        return float(np.linalg.norm(left[:3, 3] * np.array([-1.0, 1.0, 1.0]) - right[:3, 3]))
+
+    # --- actuation --------------------------------------------------------------------------------------------
+
+    def command_open(self, width: float) -> None:
+        """Position-control the fingers towards the angle of `width`."""
+        self.world.client.setJointMotorControl2(
+            self.body, self.finger_joint, pybullet.POSITION_CONTROL, targetPosition=self.angle_for_width(width),
+            maxVelocity=self.settings.opening_speed, force=self.settings.closing_torque * 4,
+        )
+
+    def command_close(self) -> None:
+        """Velocity control towards closed with the force (torque) limit: squeezes whatever is between the pads."""
+        self.world.client.setJointMotorControl2(
+            self.body, self.finger_joint, pybullet.VELOCITY_CONTROL, targetVelocity=self.settings.closing_speed,
+            force=self.settings.closing_torque,
+        )
+
+    def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
+        """Close until the finger stalls (contact) or the gripper is shut; returns the number of physics steps."""
+        self.command_close()
+        c = self.world.client
+        history: list[float] = []
+        window = self.settings.stall_steps
+        for step in range(1, max_steps + 1):
+            if on_step is not None:
+                on_step()
+            self.world.step()
+            position = c.getJointState(self.body, self.finger_joint)[0]
+            if position >= FINGER_JOINT_MAX - 0.01:
+                return step
+            history.append(position)
+            if step > 10 and abs(history[-1] - history[-1 - window]) < self.settings.stall_travel:
+                return step
+        return max_steps
+
+
+class FloatingGripper:
+    """A 2F-85 with no arm: its base is dragged by a fixed constraint (as in VGN), for fast sweeps.
+
+    Exposes the same motion interface as the arm (`reset_home`, `plan`, `free_space_path`, `place`,
+    `follow`, `hold`, `table_check_links`, `gripper`).
+    """
+
+    name = "floating"
+
+    def __init__(self, world: World, T_world_home: np.ndarray, settings: GripperSettings | None = None) -> None:
+        self.world = world
+        self.T_world_home = np.asarray(T_world_home, dtype=float)
+        self.body = world.load_robot("robotiq_2f85.urdf", self.T_world_home, fixed=False)
+        self.gripper = Robotiq2F85(world, self.body, -1, settings)
+        position, orientation = pose_to_pb(self.T_world_home)
+        self.constraint = world.client.createConstraint(
+            self.body, -1, -1, -1, pybullet.JOINT_FIXED, [0, 0, 0], [0, 0, 0], position, childFrameOrientation=orientation,
+        )
+        world.client.changeConstraint(self.constraint, maxForce=300.0)
+        self._commanded = self.T_world_home.copy()
+        self.max_speed = 0.5  # m/s along straight lines
+
+    def base_pose(self) -> np.ndarray:
+        return self.world.body_pose(self.body)
+
+    def _teleport(self, T_world_base: np.ndarray) -> None:
+        self._commanded = np.asarray(T_world_base, dtype=float).copy()
+        position, orientation = pose_to_pb(T_world_base)
+        self.world.client.resetBasePositionAndOrientation(self.body, position, orientation)
+        self.world.client.resetBaseVelocity(self.body, [0, 0, 0], [0, 0, 0])
+        self.world.client.changeConstraint(
+            self.constraint, jointChildPivot=position, jointChildFrameOrientation=orientation, maxForce=300.0,
+        )
+
+    def reset_home(self, width: float = MAX_WIDTH) -> None:
+        self._teleport(self.T_world_home)
+        self.gripper.set_width(width)
+
+    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[np.ndarray]], str]:
+        """Paths through base poses (a floating gripper reaches every pose): the first pose alone, then straight
+        lines with waypoints every `PATH_RESOLUTION` m."""
+        paths = [[np.asarray(poses[0], dtype=float)]]
+        for index in range(1, len(poses)):
+            paths.append(linear_poses(poses[index - 1], poses[index], PATH_RESOLUTION)[1:])
+        return paths, ""
+
+    def free_space_path(self, T_world_target: np.ndarray) -> list[np.ndarray]:
+        """Poses to check on the way to a free-space target: the floating gripper is placed there directly."""
+        return [T_world_target]
+
+    def place(self, T_world_base: np.ndarray) -> None:
+        """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""
+        self._teleport(T_world_base)
+
+    def follow(self, path: list[np.ndarray], speed: float, on_step=None) -> None:
+        """Drag the base through waypoints at `speed` (m/s), one constraint update per physics step."""
+        dt = self.world.physics.time_step
+        for T_next in path:
+            start = self._commanded
+            distance = float(np.linalg.norm(T_next[:3, 3] - start[:3, 3]))
+            steps = max(1, int(round(distance / (min(speed, self.max_speed) * dt))))
+            _, orientation = pose_to_pb(T_next)
+            for k in range(1, steps + 1):
+                position = start[:3, 3] + (T_next[:3, 3] - start[:3, 3]) * k / steps
+                self.world.client.changeConstraint(
+                    self.constraint, jointChildPivot=position.tolist(), jointChildFrameOrientation=orientation,
+                    maxForce=300.0,
+                )
+                if on_step is not None:
+                    on_step()
+                self.world.step()
+            self._commanded = np.asarray(T_next, dtype=float).copy()
+
+    def hold(self, steps: int, on_step=None) -> None:
+        for _ in range(steps):
+            if on_step is not None:
+                on_step()
+            self.world.step()
+
+    def table_check_links(self) -> tuple[int, list[int]]:
+        """(body, links) whose geometry must stay clear of the table."""
+        return self.body, [-1] + list(range(self.world.client.getNumJoints(self.body)))
+

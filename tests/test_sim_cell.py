@@ -1,0 +1,122 @@
+"""SimCell: scene, grasp-and-lift with the arm and the floating gripper, reachability, determinism."""
+
+import numpy as np
+import pytest
+
+from seggrasp.cell import Cell
+from sim.cell import SimCell
+from sim.primitives import primitive_object
+
+IMAGE = (160, 120)
+
+
+@pytest.fixture(scope="module")
+def box(tmp_path_factory):
+    return primitive_object("box", (0.05, 0.05, 0.08), tmp_path_factory.mktemp("objects"), mass=0.2)
+
+
+def top_down_grasp(T_world_obj: np.ndarray, height: float) -> np.ndarray:
+    """Gripper pose above the object's origin: approach straight down, closing along the object's x axis."""
+    x = T_world_obj[:3, 0] * [1.0, 1.0, 0.0]
+    x /= np.linalg.norm(x)
+    z = np.array([0.0, 0.0, -1.0])
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(z, x), z
+    T[:3, 3] = T_world_obj[:3, 3] + [0.0, 0.0, height]
+    return T
+
+
+@pytest.fixture(scope="module", params=["arm", "floating"])
+def cell(request, box):
+    with SimCell([box], embodiment=request.param, seed=3, image_size=IMAGE) as sim_cell:
+        yield sim_cell
+
+
+def test_simcell_is_a_cell(cell):
+    assert isinstance(cell, Cell)
+    assert cell.current_object.object_id == cell.objects[0].object_id
+
+
+def test_object_rests_in_the_workspace(cell):
+    cell.reset(seed=5)
+    mesh, T_world_obj = cell.object_mesh()
+    assert abs(T_world_obj[2, 3]) < 0.003  # box bottom on the table (z = 0)
+    assert abs(T_world_obj[2, 2] - 1.0) < 1e-3  # upright
+    assert 0.44 <= T_world_obj[0, 3] <= 0.56 and abs(T_world_obj[1, 3]) <= 0.06
+    assert len(mesh.faces) == len(cell.current_object.labels.face_labels)
+
+
+def test_top_down_grasp_lifts_the_box_and_touches_its_sides(cell):
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    assert outcome.reachable and outcome.lifted, outcome.message
+    assert outcome.lift_height == pytest.approx(0.20, abs=0.015)
+    assert outcome.contact_force > 5.0
+    labels = cell.current_object.labels
+    touched = labels.face_labels[outcome.touched_faces]
+    assert len(touched) and np.all(touched == labels.part_index("side"))
+    # the pads closed on the two faces normal to the closing direction (+-x of the box)
+    normals = cell.current_object.mesh.face_normals[outcome.touched_faces]
+    assert np.all(np.abs(normals[:, 0]) > 0.99)
+    # fingers symmetric while holding
+    assert cell.robot.gripper.finger_asymmetry() < 0.002
+    _, T_after = cell.object_mesh()
+    assert T_after[2, 3] - T_world_obj[2, 3] > 0.18
+
+
+def test_grasp_in_empty_air_is_not_a_lift(cell):
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    T = top_down_grasp(T_world_obj, 0.06)
+    T[1, 3] += 0.15  # 15 cm beside the box
+    outcome = cell.execute(T, 0.05)
+    assert outcome.reachable and not outcome.lifted
+    assert outcome.lift_height < 0.01
+    assert len(outcome.touched_faces) == 0
+
+
+def test_grasp_below_the_table_is_refused(cell):
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    T = top_down_grasp(T_world_obj, 0.06)
+    T[2, 3] = -0.05
+    outcome = cell.execute(T, 0.05)
+    assert not outcome.reachable and "table" in outcome.message
+    _, T_after = cell.object_mesh()
+    np.testing.assert_allclose(T_after, T_world_obj, atol=1e-6)  # nothing moved
+
+
+def test_arm_reports_unreachable_pose(box):
+    with SimCell([box], embodiment="arm", seed=0, image_size=IMAGE) as cell:
+        _, T_world_obj = cell.object_mesh()
+        T = top_down_grasp(T_world_obj, 0.06)
+        T[0, 3] = 1.5  # far beyond the UR5's reach
+        outcome = cell.execute(T, 0.05)
+        assert not outcome.reachable and not outcome.lifted
+        assert "unreachable" in outcome.message
+
+
+def test_same_seed_same_scene_frames_and_outcome(box):
+    results = []
+    for _ in range(2):
+        with SimCell([box], embodiment="floating", seed=11, image_size=IMAGE) as cell:
+            frames = cell.capture()
+            _, T_world_obj = cell.object_mesh()
+            outcome = cell.execute(top_down_grasp(T_world_obj, 0.05), 0.05)
+            results.append((frames, T_world_obj, outcome))
+    (frames_a, pose_a, out_a), (frames_b, pose_b, out_b) = results
+    np.testing.assert_array_equal(pose_a, pose_b)
+    for a, b in zip(frames_a, frames_b):
+        np.testing.assert_array_equal(a.rgb, b.rgb)
+        np.testing.assert_array_equal(a.depth, b.depth)
+    assert out_a.to_json() == out_b.to_json()
+
+
+def test_bad_grasp_input_raises_value_error(cell):
+    with pytest.raises(ValueError, match="4x4"):
+        cell.execute(np.eye(3), 0.05)
+    with pytest.raises(ValueError, match="width"):
+        cell.execute(np.eye(4), -0.01)
+    with pytest.raises(ValueError, match="object_id"):
+        cell.reset(seed=0, object_id="no-such-object")

@@ -1,0 +1,60 @@
+"""UR5 + 2F-85 description: DH kinematics, IK reachability, gripper geometry."""
+
+import numpy as np
+import pytest
+
+from sim.gripper import MAX_WIDTH
+from sim.robot import HOME_Q, T_BASELINK_DHBASE, UR5Arm, dh_forward, pose_error
+from sim.world import World
+
+
+@pytest.fixture(scope="module")
+def arm():
+    world = World()
+    robot = UR5Arm(world)
+    yield robot
+    world.close()
+
+
+def test_urdf_forward_kinematics_is_the_ur5_dh_chain(arm):
+    c = arm.world.client
+    tool0 = [j for j in range(c.getNumJoints(arm.body)) if c.getJointInfo(arm.body, j)[12] == b"tool0"][0]
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q = rng.uniform(-3.0, 3.0, 6)
+        arm.place(q)
+        T_pybullet = arm.world.link_pose(arm.body, tool0)
+        np.testing.assert_allclose(T_BASELINK_DHBASE @ dh_forward(q), T_pybullet, atol=1e-6)
+        np.testing.assert_allclose(arm.fk(q), arm.world.link_pose(arm.body, arm.gripper_base_link), atol=1e-6)
+    # UR5 reach at zero joints: the arm lies stretched along +x of base_link (a2 + a3 + wrist offsets).
+    T0 = T_BASELINK_DHBASE @ dh_forward(np.zeros(6))
+    assert T0[0, 3] == pytest.approx(0.425 + 0.39225, abs=1e-9)
+    assert T0[2, 3] == pytest.approx(0.089159 - 0.09465, abs=1e-9)
+
+
+def test_ik_round_trip_and_reachability_check(arm):
+    target = arm.fk(HOME_Q + np.array([0.3, 0.2, -0.3, 0.1, 0.2, 0.5]))
+    q, reason = arm.ik(target)
+    assert q is not None, reason
+    position_error, angle_error = pose_error(arm.fk(q), target)
+    assert position_error < 0.005 and angle_error < np.deg2rad(3)
+
+    far = target.copy()
+    far[:3, 3] = [1.4, 0.0, 0.3]  # beyond the UR5's 0.85 m reach
+    q, reason = arm.ik(far)
+    assert q is None and "misses" in reason
+
+
+def test_gripper_stroke_matches_the_datasheet(arm):
+    gripper = arm.gripper
+    assert gripper.max_width == pytest.approx(MAX_WIDTH, abs=0.003)  # 85 mm stroke
+    assert gripper.width_for_angle(0.8) < 0.005
+    widths = [gripper.width_for_angle(a) for a in np.linspace(0, 0.8, 20)]
+    assert np.all(np.diff(widths) < 0)
+    for width in (0.01, 0.04, 0.08):
+        assert gripper.width_for_angle(gripper.angle_for_width(width)) == pytest.approx(width, abs=1e-4)
+    gripper.set_width(0.06)
+    assert gripper.width() == pytest.approx(0.06, abs=1e-4)
+    assert gripper.finger_asymmetry() < 1e-4
+    # TCP is between the pads: ~14 cm in front of the gripper base.
+    assert 0.12 < gripper.T_base_tcp(0.05)[2, 3] < 0.16
