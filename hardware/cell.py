@@ -1,0 +1,247 @@
+"""`RealCell`: the UR5 + Robotiq 2F-85 + RealSense cell behind the same `seggrasp.cell.Cell` interface as the twin.
+
+A person places the object; the cell cannot know its mesh, so `object_mesh()` raises and the episode reconstructs
+it from `capture()` with `seggrasp.perception.perceive_object(frames, workspace)`. `execute()` runs pre-grasp,
+approach, close, lift, hold, judges the grasp by the gripper's object detection after the hold, then puts the object
+back down and backs off. Every pose of the sequence is checked against the safety limits before the first command
+is sent; a refused or unreachable grasp is reported as `reachable=False`, never raised. A lost connection or a
+protective/emergency stop stops the arm and raises (`ConnectionLostError` / `RobotStoppedError`).
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+import trimesh
+
+from hardware.config import CellConfig, load_config
+from hardware.errors import ConnectionLostError, HardwareError, MotionError, RobotStoppedError, SafetyError
+from hardware.realsense import RealSenseCamera
+from hardware.robotiq import RobotiqGripper
+from hardware.safety import SafetyGuard
+from hardware.ur import URArm
+from seggrasp.cell import Frame, GraspOutcome
+
+log = logging.getLogger(__name__)
+
+#: The object is put back this far above where it was grasped, so a slipped object is not pushed into the table.
+PLACE_CLEARANCE = 0.01
+
+
+def make_guard(config: CellConfig) -> SafetyGuard:
+    """The safety guard for a cell configuration (fingertip, pad and flange geometry from the config)."""
+    return SafetyGuard(config.limits, finger_reach=0.5 * config.gripper.stroke,
+                       tip_beyond_origin=config.gripper.tip_beyond_origin,
+                       flange_in_gripper=np.linalg.inv(config.robot.T_flange_gripper)[:3, 3])
+
+
+def _translated(T: np.ndarray, offset_world: np.ndarray | None = None, along_z: float = 0.0) -> np.ndarray:
+    """`T` moved by `offset_world` (world frame) and by `along_z` along its own z axis."""
+    out = np.array(T, dtype=np.float64, copy=True)
+    out[:3, 3] += out[:3, 2] * along_z
+    if offset_world is not None:
+        out[:3, 3] += offset_world
+    return out
+
+
+class RealCell:
+    """The real robot cell. Build it with `RealCell.from_config(path, dry_run=False)`."""
+
+    def __init__(self, config: CellConfig, arm: URArm, gripper: RobotiqGripper, cameras: list[RealSenseCamera],
+                 *, dry_run: bool = False) -> None:
+        self.config = config
+        self.arm = arm
+        self.gripper = gripper
+        self.cameras = cameras
+        self.dry_run = dry_run
+        self._closed = False
+
+    @classmethod
+    def from_config(cls, path: str | Path, dry_run: bool = False, *,
+                    control_factory: Callable[[str], Any] | None = None,
+                    receive_factory: Callable[[str], Any] | None = None,
+                    pipeline_factory: Callable[[str], Any] | None = None,
+                    align_factory: Callable[[], Any] | None = None,
+                    camera_warmup_frames: int = 15) -> RealCell:
+        """Load the YAML config, connect the arm, gripper and cameras, and activate the gripper.
+
+        In dry run nothing connects to the robot or gripper (motions are checked and logged only); the cameras,
+        which move nothing, are still used. The factories replace the ur_rtde / pyrealsense2 objects (tests).
+        """
+        config = load_config(path)
+        guard = make_guard(config)
+        arm = URArm(config.robot, guard, dry_run=dry_run, control_factory=control_factory,
+                    receive_factory=receive_factory)
+        gripper = RobotiqGripper(config.gripper, guard, dry_run=dry_run)
+        cameras = [RealSenseCamera(camera, pipeline=pipeline_factory(camera.serial) if pipeline_factory else None,
+                                   align=align_factory() if align_factory else None,
+                                   warmup_frames=camera_warmup_frames)
+                   for camera in config.cameras]
+        cell = cls(config, arm, gripper, cameras, dry_run=dry_run)
+        try:
+            arm.connect()
+            gripper.connect()
+            if not gripper.is_active():
+                gripper.activate()
+            for camera in cameras:
+                camera.start()
+        except BaseException:
+            cell.close()
+            raise
+        log.info("real cell ready%s: %d camera(s)", " (DRY RUN: the robot will not move)" if dry_run else "",
+                 len(cameras))
+        return cell
+
+    # ----------------------------------------------------------------------------------------------------- queries
+    @property
+    def workspace_bounds(self) -> np.ndarray:
+        """(2, 3) world-frame box [min, max] of the workspace (where perception looks for the object)."""
+        return np.stack([self.config.limits.workspace_min, self.config.limits.workspace_max])
+
+    @property
+    def table_height(self) -> float:
+        """z of the table top in the world frame."""
+        return self.config.limits.table_height
+
+    # -------------------------------------------------------------------------------------------------- Cell API
+    def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
+        """Open the gripper, move home, and ask the operator to place the object (seed: nothing random here)."""
+        self._check_open()
+        motion = self.config.motion
+        self.gripper.open()
+        self.arm.move_joints(self.config.robot.home_joints, motion.joint_speed, motion.joint_acceleration)
+        what = f"object {object_id!r}" if object_id else "the object"
+        prompt = (f"Place {what} on the table inside the workspace box "
+                  f"{np.round(self.workspace_bounds, 3).tolist()} (seed {seed}), clear of the gripper.")
+        log.warning(prompt)
+        if self.config.interactive and sys.stdin is not None and sys.stdin.isatty():
+            input(prompt + " Press Enter when done. ")
+
+    def capture(self) -> list[Frame]:
+        """One aligned RGB-D frame from every camera."""
+        self._check_open()
+        return [camera.capture() for camera in self.cameras]
+
+    def object_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
+        """Not available on the real robot: the mesh must be reconstructed from the camera frames."""
+        raise NotImplementedError(
+            "the real cell does not know the object's mesh or pose; reconstruct it from cell.capture() with "
+            "seggrasp.perception.perceive_object(frames, workspace) (the mesh is then in the world frame)")
+
+    def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+        """Pre-grasp, approach, close, lift, hold and judge; then put the object back and back off.
+
+        `T_world_grasp` is the gripper frame (pad centres) at the grasp and `width` the opening at which the pads
+        meet the object. Returns `reachable=False` without moving when any pose breaks a limit or has no IK.
+        """
+        self._check_open()
+        T_grasp = np.asarray(T_world_grasp, dtype=np.float64)
+        if T_grasp.shape != (4, 4) or not np.all(np.isfinite(T_grasp)):
+            raise ValueError(f"T_world_grasp must be a finite 4x4 matrix, got shape {T_grasp.shape}")
+        if not np.isfinite(width) or width < 0:
+            raise ValueError(f"grasp width must be a non-negative number, got {width!r}")
+        cfg, motion = self.config, self.config.motion
+        if width > cfg.gripper.stroke:
+            return self._not_reached(f"grasp width {width:.4f} m exceeds the gripper stroke {cfg.gripper.stroke} m")
+
+        # Command frame: the controller's TCP is the fully-open pad centre; at `width` the pads sit
+        # `pad_shift(width)` further along +z, so the command goes back by that much.
+        grasp = _translated(T_grasp, along_z=-cfg.gripper.pad_shift(width))
+        pre = _translated(grasp, along_z=-motion.pregrasp_distance)
+        lift = _translated(grasp, offset_world=np.array([0.0, 0.0, motion.lift_height]))
+        place = _translated(grasp, offset_world=np.array([0.0, 0.0, PLACE_CLEARANCE]))
+        retreat = _translated(place, along_z=-motion.pregrasp_distance)
+        opening = min(cfg.gripper.stroke, width + motion.opening_margin)
+
+        refusal = self._check_plan([("pre-grasp", pre), ("grasp", grasp), ("lift", lift), ("place", place),
+                                    ("retreat", retreat)])
+        if refusal:
+            return self._not_reached(refusal)
+
+        stage = "opening the gripper"
+        try:
+            self.gripper.move_to_width(opening)
+            stage = "moving to the pre-grasp pose"
+            self.arm.move_linear(pre, motion.tool_speed, motion.tool_acceleration)
+            stage = "approaching"
+            self.arm.move_linear(grasp, motion.tool_speed, motion.tool_acceleration)
+        except (SafetyError, MotionError) as exc:
+            log.warning("grasp not reached while %s: %s", stage, exc)
+            return self._not_reached(f"{stage}: {exc}")
+        except HardwareError as exc:
+            raise self._abort(stage, exc) from exc
+
+        try:
+            stage = "closing the gripper"
+            grip = self.gripper.close(speed=cfg.gripper.speed, force=cfg.gripper.force)
+            stage = "lifting"
+            self.arm.move_linear(lift, motion.tool_speed, motion.tool_acceleration)
+            stage = "holding"
+            if not self.dry_run:
+                time.sleep(motion.hold_time)
+            held = self.gripper.object_detected()
+            width_held = self.gripper.width()
+            if held:
+                stage = "putting the object back"
+                self.arm.move_linear(place, motion.tool_speed, motion.tool_acceleration)
+            stage = "releasing"
+            self.gripper.move_to_width(opening)
+            if held:
+                stage = "backing off"
+                self.arm.move_linear(retreat, motion.tool_speed, motion.tool_acceleration)
+        except HardwareError as exc:
+            raise self._abort(stage, exc) from exc
+
+        message = ("dry run: motions planned and logged, nothing moved" if self.dry_run else
+                   f"object {'held' if held else 'not held'} after a {motion.hold_time:.1f} s hold "
+                   f"(closed on an object: {grip.object_detected}, finger gap {width_held * 1000:.1f} mm)")
+        log.info("grasp outcome: %s", message)
+        return GraspOutcome(reachable=True, lifted=held, lift_height=motion.lift_height if held else 0.0,
+                            contact_force=cfg.gripper.force if held else 0.0, contacts_observed=False,
+                            message=message)
+
+    def close(self) -> None:
+        """Stop the cameras, close the gripper socket and shut down the RTDE connection. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        for camera in self.cameras:
+            camera.stop()
+        self.gripper.disconnect()
+        self.arm.close()
+        log.info("real cell closed")
+
+    # --------------------------------------------------------------------------------------------------- helpers
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ConnectionLostError("the real cell was closed")
+
+    def _check_plan(self, poses: list[tuple[str, np.ndarray]]) -> str:
+        """Empty string if every pose and the straight paths between them pass; otherwise why not."""
+        try:
+            for (name_a, pose_a), (name_b, pose_b) in zip(poses, poses[1:]):
+                self.arm.guard.check_pose(pose_a, name_a)
+                self.arm.guard.check_linear_path(pose_a, pose_b, f"{name_a} -> {name_b}")
+            for name, pose in poses:
+                if not self.arm.has_ik_solution(pose):
+                    return f"{name} pose has no inverse-kinematics solution"
+        except SafetyError as exc:
+            return f"refused by the safety limits: {exc}"
+        return ""
+
+    def _not_reached(self, message: str) -> GraspOutcome:
+        log.warning("grasp not executed: %s", message)
+        return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, contacts_observed=False,
+                            message=message)
+
+    def _abort(self, stage: str, exc: HardwareError) -> HardwareError:
+        """Stop the arm and turn a hardware failure into an error that says what the cell was doing."""
+        self.arm.stop()
+        kind = type(exc) if isinstance(exc, (ConnectionLostError, RobotStoppedError)) else HardwareError
+        log.error("grasp aborted while %s: %s", stage, exc)
+        return kind(f"grasp aborted while {stage}: {exc}")

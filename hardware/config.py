@@ -1,0 +1,426 @@
+"""The cell configuration: one YAML file for the robot, gripper, cameras, calibration, limits and workspace.
+
+`load_config(path)` reads and validates the file; every problem is reported as a `ConfigError` (a `ValueError`)
+that names the offending field, e.g. ``cell.yaml: limits.max_tool_speed: must be a positive number, got -1``.
+Unknown keys are errors too, so a typo cannot silently drop a limit. See `hardware/cell.example.yaml`.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+#: Standard Denavit-Hartenberg parameters published by Universal Robots, used for the joint-path safety check.
+UR_MODELS = ("ur5", "ur5e")
+
+
+class ConfigError(ValueError):
+    """The cell configuration is invalid; the message names the file and the field."""
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """The UR arm: address, model, home configuration and the tool (gripper) frame on the flange."""
+
+    ip: str
+    model: str
+    home_joints: np.ndarray  # (6,) rad
+    T_flange_gripper: np.ndarray  # (4, 4) the project's gripper frame (fingertip centre) in the flange frame
+    motion_timeout: float  # s, longest a single motion may take before it is stopped
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    """The Robotiq 2F-85 behind the URCap socket, and its width <-> register calibration."""
+
+    host: str
+    port: int
+    stroke: float  # m, finger opening at `open_register`
+    open_register: int  # POS register value read when fully open (about 3 after activation)
+    closed_register: int  # POS register value read when closed on nothing (about 230 after activation)
+    timeout: float  # s, per socket reply and per finger motion
+    speed: float  # m/s finger speed used for grasps (the 2F-85 does 0.02-0.15)
+    force: float  # N grip force used for grasps (the 2F-85 does 20-235)
+    tip_beyond_origin: float  # m the fingertips reach past the gripper origin (pad centres) along +z
+    closing_shift: float  # m the pad centres move along +z from fully open to closed (linkage arc), measured
+
+    def pad_shift(self, width: float) -> float:
+        """How far (m, along the gripper's +z) the pad centres sit at opening `width` relative to fully open.
+
+        The 2F-85's fingers swing on an arc, so the pads move along the approach axis as they close; this is the
+        linear interpolation of the measured `closing_shift` (0 when fully open).
+        """
+        return float(self.closing_shift * (1.0 - np.clip(width / self.stroke, 0.0, 1.0)))
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    """One RealSense camera, identified by its serial number."""
+
+    serial: str
+    name: str
+    width: int
+    height: int
+    fps: int
+    T_world_cam: np.ndarray  # (4, 4) colour optical frame (OpenCV) -> world
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Safety limits: anything outside them is refused before a command is sent."""
+
+    workspace_min: np.ndarray  # (3,) world-frame box the gripper origin must stay in
+    workspace_max: np.ndarray  # (3,)
+    table_height: float  # m, z of the table top in the world frame
+    min_table_clearance: float  # m, lowest any fingertip or the flange may come above the table
+    max_tool_speed: float  # m/s
+    max_tool_acceleration: float  # m/s^2
+    max_joint_speed: float  # rad/s
+    max_joint_acceleration: float  # rad/s^2
+    max_grip_force: float  # N
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Speeds used by the cell (each must be within the limits) and the grasp sequence geometry."""
+
+    tool_speed: float
+    tool_acceleration: float
+    joint_speed: float
+    joint_acceleration: float
+    pregrasp_distance: float  # m back along the approach axis
+    lift_height: float  # m up in the world frame
+    hold_time: float  # s held at the top before judging the grasp
+    opening_margin: float  # m added to the grasp width for the approach
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    """Everything `RealCell` needs to know about the cell."""
+
+    path: Path
+    robot: RobotConfig
+    gripper: GripperConfig
+    cameras: tuple[CameraConfig, ...]
+    limits: Limits
+    motion: MotionConfig
+    interactive: bool  # wait for Enter on reset (only when stdin is a terminal)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Validation helpers: each takes the dotted field name so errors can say exactly where the problem is.
+
+
+class _Reader:
+    """Reads fields out of nested mappings and raises `ConfigError` naming the file and the field."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def error(self, field_name: str, problem: str) -> ConfigError:
+        return ConfigError(f"{self.source}: {field_name}: {problem}")
+
+    def section(self, data: dict, key: str, prefix: str, allowed: set[str], required: bool = True) -> dict:
+        name = f"{prefix}{key}"
+        if key not in data:
+            if required:
+                raise self.error(name, "missing section")
+            return {}
+        value = data[key]
+        if not isinstance(value, dict):
+            raise self.error(name, f"must be a mapping, got {type(value).__name__}")
+        self.check_keys(value, f"{name}.", allowed)
+        return value
+
+    def check_keys(self, data: dict, prefix: str, allowed: set[str]) -> None:
+        unknown = sorted(set(map(str, data)) - allowed)
+        if unknown:
+            raise self.error(f"{prefix}{unknown[0]}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
+
+    def number(self, data: dict, key: str, prefix: str, default: float | None = None, *, positive: bool = False,
+               non_negative: bool = False) -> float:
+        name = f"{prefix}{key}"
+        if key not in data:
+            if default is None:
+                raise self.error(name, "missing")
+            return float(default)
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise self.error(name, f"must be a finite number, got {value!r}")
+        if positive and value <= 0:
+            raise self.error(name, f"must be a positive number, got {value!r}")
+        if non_negative and value < 0:
+            raise self.error(name, f"must be >= 0, got {value!r}")
+        return float(value)
+
+    def integer(self, data: dict, key: str, prefix: str, default: int | None = None, *, low: int | None = None,
+                high: int | None = None) -> int:
+        name = f"{prefix}{key}"
+        if key not in data:
+            if default is None:
+                raise self.error(name, "missing")
+            return int(default)
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.error(name, f"must be an integer, got {value!r}")
+        if (low is not None and value < low) or (high is not None and value > high):
+            raise self.error(name, f"must be in [{low}, {high}], got {value}")
+        return int(value)
+
+    def string(self, data: dict, key: str, prefix: str, default: str | None = None) -> str:
+        name = f"{prefix}{key}"
+        if key not in data:
+            if default is None:
+                raise self.error(name, "missing")
+            return default
+        value = data[key]
+        if isinstance(value, int) and not isinstance(value, bool):
+            value = str(value)  # camera serials are often written without quotes
+        if not isinstance(value, str) or not value.strip():
+            raise self.error(name, f"must be a non-empty string, got {value!r}")
+        return value.strip()
+
+    def boolean(self, data: dict, key: str, prefix: str, default: bool) -> bool:
+        if key not in data:
+            return default
+        value = data[key]
+        if not isinstance(value, bool):
+            raise self.error(f"{prefix}{key}", f"must be true or false, got {value!r}")
+        return value
+
+    def vector(self, value: Any, name: str, length: int) -> np.ndarray:
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.error(name, f"must be a list of {length} numbers, got {value!r}") from None
+        if array.shape != (length,) or not np.all(np.isfinite(array)):
+            raise self.error(name, f"must be a list of {length} finite numbers, got {value!r}")
+        return array
+
+    def transform(self, value: Any, name: str) -> np.ndarray:
+        """A rigid transform written as a 4x4 matrix or as {xyz: [..], rpy: [..]} (metres, radians, extrinsic XYZ)."""
+        if isinstance(value, dict):
+            self.check_keys(value, f"{name}.", {"xyz", "rpy"})
+            T = np.eye(4)
+            T[:3, 3] = self.vector(value.get("xyz", [0.0, 0.0, 0.0]), f"{name}.xyz", 3)
+            T[:3, :3] = Rotation.from_euler("xyz", self.vector(value.get("rpy", [0.0, 0.0, 0.0]), f"{name}.rpy", 3)
+                                            ).as_matrix()
+            return T
+        try:
+            T = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise self.error(name, "must be a 4x4 matrix or {xyz: [...], rpy: [...]}") from None
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise self.error(name, f"must be a 4x4 matrix of finite numbers, got shape {T.shape}")
+        if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+            raise self.error(name, "last row must be [0, 0, 0, 1]")
+        R = T[:3, :3]
+        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0.999:
+            raise self.error(name, "rotation part is not a proper rotation matrix (orthonormal, det +1)")
+        return T
+
+
+_TOP_KEYS = {"robot", "gripper", "cameras", "calibration", "workspace", "table", "limits", "motion", "interactive"}
+
+
+def load_config(path: str | Path) -> CellConfig:
+    """Read and validate a cell YAML file; raises `ConfigError` naming the field on any problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: cell configuration file not found")
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    return parse_config(data, path)
+
+
+def parse_config(data: Any, path: Path) -> CellConfig:
+    """Validate already-parsed YAML `data`; `path` names the source in errors and anchors relative file paths."""
+    r = _Reader(str(path))
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path}: the top level must be a mapping with sections {sorted(_TOP_KEYS)}")
+    r.check_keys(data, "", _TOP_KEYS)
+
+    robot = _parse_robot(r, data)
+    gripper = _parse_gripper(r, data, robot.ip)
+    limits = _parse_limits(r, data)
+    motion = _parse_motion(r, data, limits, gripper)
+    cameras = _parse_cameras(r, data, path)
+    return CellConfig(path=path, robot=robot, gripper=gripper, cameras=cameras, limits=limits, motion=motion,
+                      interactive=r.boolean(data, "interactive", "", False))
+
+
+def _parse_robot(r: _Reader, data: dict) -> RobotConfig:
+    section = r.section(data, "robot", "", {"ip", "model", "home_joints", "tcp_offset", "motion_timeout"})
+    ip = r.string(section, "ip", "robot.")
+    if not re.fullmatch(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?", ip):
+        raise r.error("robot.ip", f"must be an IP address or host name, got {ip!r}")
+    model = r.string(section, "model", "robot.", "ur5").lower()
+    if model not in UR_MODELS:
+        raise r.error("robot.model", f"must be one of {UR_MODELS}, got {model!r}")
+    if "home_joints" not in section:
+        raise r.error("robot.home_joints", "missing (six joint angles in radians)")
+    home = r.vector(section["home_joints"], "robot.home_joints", 6)
+    if np.any(np.abs(home) > 2 * np.pi):
+        raise r.error("robot.home_joints", "joint angles must be in radians within [-2 pi, 2 pi]")
+    if "tcp_offset" not in section:
+        raise r.error("robot.tcp_offset", "missing (the gripper frame in the flange frame, e.g. {xyz: [0, 0, 0.15]})")
+    T_flange_gripper = r.transform(section["tcp_offset"], "robot.tcp_offset")
+    if not 0.0 < T_flange_gripper[2, 3] < 0.5:
+        raise r.error("robot.tcp_offset", "the fingertip centre must lie 0-0.5 m in front of the flange (+z)")
+    return RobotConfig(ip=ip, model=model, home_joints=home, T_flange_gripper=T_flange_gripper,
+                       motion_timeout=r.number(section, "motion_timeout", "robot.", 30.0, positive=True))
+
+
+def _parse_gripper(r: _Reader, data: dict, robot_ip: str) -> GripperConfig:
+    section = r.section(data, "gripper", "", {"host", "port", "stroke", "open_register", "closed_register",
+                                              "timeout", "speed", "force", "tip_beyond_origin", "closing_shift"})
+    p = "gripper."
+    config = GripperConfig(
+        host=r.string(section, "host", p, robot_ip),
+        port=r.integer(section, "port", p, 63352, low=1, high=65535),
+        stroke=r.number(section, "stroke", p, 0.085, positive=True),
+        open_register=r.integer(section, "open_register", p, 3, low=0, high=255),
+        closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
+        timeout=r.number(section, "timeout", p, 5.0, positive=True),
+        speed=r.number(section, "speed", p, 0.05, positive=True),
+        force=r.number(section, "force", p, 40.0, positive=True),
+        tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
+        closing_shift=r.number(section, "closing_shift", p, 0.0),
+    )
+    if abs(config.closing_shift) > 0.05:
+        raise r.error("gripper.closing_shift", f"{config.closing_shift} m is implausible for a 2F-85 (|shift| <= 0.05)")
+    if config.closed_register <= config.open_register:
+        raise r.error("gripper.closed_register", "must be greater than gripper.open_register")
+    if config.stroke > 0.2:
+        raise r.error("gripper.stroke", f"{config.stroke} m is not a 2F gripper stroke (metres, e.g. 0.085)")
+    return config
+
+
+def _parse_limits(r: _Reader, data: dict) -> Limits:
+    workspace = r.section(data, "workspace", "", {"min", "max"})
+    for key in ("min", "max"):
+        if key not in workspace:
+            raise r.error(f"workspace.{key}", "missing (a world-frame corner [x, y, z] in metres)")
+    low = r.vector(workspace["min"], "workspace.min", 3)
+    high = r.vector(workspace["max"], "workspace.max", 3)
+    if np.any(high <= low):
+        raise r.error("workspace.max", f"must exceed workspace.min on every axis, got min {low} max {high}")
+    table = r.section(data, "table", "", {"height"})
+    table_height = r.number(table, "height", "table.")
+    if not low[2] <= table_height < high[2]:
+        raise r.error("table.height", f"must lie inside the workspace's z range [{low[2]}, {high[2]})")
+    section = r.section(data, "limits", "", {"min_table_clearance", "max_tool_speed", "max_tool_acceleration",
+                                             "max_joint_speed", "max_joint_acceleration", "max_grip_force"})
+    p = "limits."
+    limits = Limits(
+        workspace_min=low,
+        workspace_max=high,
+        table_height=table_height,
+        min_table_clearance=r.number(section, "min_table_clearance", p, 0.005, non_negative=True),
+        max_tool_speed=r.number(section, "max_tool_speed", p, 0.25, positive=True),
+        max_tool_acceleration=r.number(section, "max_tool_acceleration", p, 1.2, positive=True),
+        max_joint_speed=r.number(section, "max_joint_speed", p, 1.05, positive=True),
+        max_joint_acceleration=r.number(section, "max_joint_acceleration", p, 1.4, positive=True),
+        max_grip_force=r.number(section, "max_grip_force", p, 100.0, positive=True),
+    )
+    if limits.max_tool_speed > 1.0:
+        raise r.error("limits.max_tool_speed", f"{limits.max_tool_speed} m/s is above the 1 m/s the bridge allows")
+    if limits.max_joint_speed > 3.14:
+        raise r.error("limits.max_joint_speed", f"{limits.max_joint_speed} rad/s is above the UR5's 3.14 rad/s")
+    return limits
+
+
+def _parse_motion(r: _Reader, data: dict, limits: Limits, gripper: GripperConfig) -> MotionConfig:
+    section = r.section(data, "motion", "", {"tool_speed", "tool_acceleration", "joint_speed", "joint_acceleration",
+                                             "pregrasp_distance", "lift_height", "hold_time", "opening_margin"},
+                        required=False)
+    p = "motion."
+    motion = MotionConfig(
+        tool_speed=r.number(section, "tool_speed", p, min(0.1, limits.max_tool_speed), positive=True),
+        tool_acceleration=r.number(section, "tool_acceleration", p, min(0.5, limits.max_tool_acceleration),
+                                   positive=True),
+        joint_speed=r.number(section, "joint_speed", p, min(0.5, limits.max_joint_speed), positive=True),
+        joint_acceleration=r.number(section, "joint_acceleration", p, min(0.8, limits.max_joint_acceleration),
+                                    positive=True),
+        pregrasp_distance=r.number(section, "pregrasp_distance", p, 0.10, positive=True),
+        lift_height=r.number(section, "lift_height", p, 0.20, positive=True),
+        hold_time=r.number(section, "hold_time", p, 1.0, non_negative=True),
+        opening_margin=r.number(section, "opening_margin", p, 0.02, non_negative=True),
+    )
+    for name, value, cap in (("tool_speed", motion.tool_speed, limits.max_tool_speed),
+                             ("tool_acceleration", motion.tool_acceleration, limits.max_tool_acceleration),
+                             ("joint_speed", motion.joint_speed, limits.max_joint_speed),
+                             ("joint_acceleration", motion.joint_acceleration, limits.max_joint_acceleration)):
+        if value > cap:
+            raise r.error(f"motion.{name}", f"{value} exceeds limits.max_{name} = {cap}")
+    if gripper.force > limits.max_grip_force:
+        raise r.error("gripper.force", f"{gripper.force} N exceeds limits.max_grip_force = {limits.max_grip_force}")
+    return motion
+
+
+def _parse_cameras(r: _Reader, data: dict, path: Path) -> tuple[CameraConfig, ...]:
+    if "cameras" not in data:
+        raise r.error("cameras", "missing (a list of {serial: ...} entries)")
+    entries = data["cameras"]
+    if not isinstance(entries, list) or not entries:
+        raise r.error("cameras", "must be a non-empty list of {serial: ...} entries")
+    extrinsics = _parse_calibration(r, data, path)
+    cameras: list[CameraConfig] = []
+    for index, entry in enumerate(entries):
+        p = f"cameras[{index}]."
+        if not isinstance(entry, dict):
+            raise r.error(f"cameras[{index}]", f"must be a mapping with a serial, got {entry!r}")
+        r.check_keys(entry, p, {"serial", "name", "width", "height", "fps"})
+        serial = r.string(entry, "serial", p)
+        if serial not in extrinsics:
+            raise r.error(f"{p}serial", f"no T_world_cam for camera {serial} in the calibration")
+        cameras.append(CameraConfig(
+            serial=serial,
+            name=r.string(entry, "name", p, f"cam{serial}"),
+            width=r.integer(entry, "width", p, 640, low=1, high=4096),
+            height=r.integer(entry, "height", p, 480, low=1, high=4096),
+            fps=r.integer(entry, "fps", p, 30, low=1, high=300),
+            T_world_cam=extrinsics[serial],
+        ))
+    serials = [c.serial for c in cameras]
+    if len(set(serials)) != len(serials):
+        raise r.error("cameras", f"serial numbers must be distinct, got {serials}")
+    names = [c.name for c in cameras]
+    if len(set(names)) != len(names):
+        raise r.error("cameras", f"camera names must be distinct, got {names}")
+    return tuple(cameras)
+
+
+def _parse_calibration(r: _Reader, data: dict, path: Path) -> dict[str, np.ndarray]:
+    section = r.section(data, "calibration", "", {"file", "T_world_cam"})
+    if ("file" in section) == ("T_world_cam" in section):
+        raise r.error("calibration", "give exactly one of calibration.file or calibration.T_world_cam")
+    if "file" in section:
+        from hardware.calibration import load_extrinsics  # local import: calibration imports this module
+
+        file = Path(r.string(section, "file", "calibration."))
+        if not file.is_absolute():
+            file = path.parent / file
+        try:
+            return load_extrinsics(file)
+        except ValueError as exc:
+            raise r.error("calibration.file", str(exc)) from None
+    inline = section["T_world_cam"]
+    if not isinstance(inline, dict) or not inline:
+        raise r.error("calibration.T_world_cam", "must map camera serials to 4x4 matrices")
+    return {str(serial): r.transform(T, f"calibration.T_world_cam.{serial}") for serial, T in inline.items()}
+
+
+def transform_from_config(value: Any, name: str, source: str = "calibration") -> np.ndarray:
+    """Validate one transform written as in the config (4x4 or {xyz, rpy}); raises `ConfigError` naming `name`."""
+    return _Reader(source).transform(value, name)
+

@@ -1,0 +1,164 @@
+"""The Robotiq client against a fake URCap socket server on 127.0.0.1 speaking the real ASCII protocol."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import pytest
+
+from hardware.cell import make_guard
+from hardware.config import load_config
+from hardware.errors import ConnectionLostError, GripperError, SafetyError
+from hardware.robotiq import RobotiqGripper
+from tests.fakes_hardware import EXAMPLE_CONFIG, FakeRobotiqServer
+
+
+@pytest.fixture(scope="module")
+def cell_config():
+    return load_config(EXAMPLE_CONFIG)
+
+
+def make_gripper(cell_config, server: FakeRobotiqServer, timeout: float = 1.0, dry_run: bool = False):
+    config = replace(cell_config.gripper, host="127.0.0.1", port=server.port, timeout=timeout)
+    gripper = RobotiqGripper(config, make_guard(cell_config), dry_run=dry_run)
+    gripper.connect()
+    return gripper
+
+
+@pytest.mark.parametrize("newline", [False, True], ids=["bare-replies", "newline-replies"])
+def test_activation_runs_the_reset_sequence_then_activates(cell_config, newline):
+    with FakeRobotiqServer(newline=newline) as server:
+        gripper = make_gripper(cell_config, server)
+        assert not gripper.is_active()
+        gripper.activate()
+        assert gripper.is_active()
+        sets = [line for line in server.lines if line.startswith("SET")]
+        assert sets[0] == "SET ACT 0 ATR 0"
+        assert sets[1] == "SET ACT 1"
+        assert server.vars["STA"] == 3
+        gripper.disconnect()
+
+
+def test_close_on_nothing_and_open(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        closed = gripper.close(speed=0.1, force=50.0)
+        assert not closed.object_detected
+        assert closed.position == 230 and closed.width == pytest.approx(0.0)
+        opened = gripper.open()
+        assert not opened.object_detected
+        assert opened.width == pytest.approx(cell_config.gripper.stroke)
+        # speed and force reach the gripper as registers 0-255 on the same SET line as GTO
+        close_line = next(line for line in server.lines if line.startswith("SET POS 255"))
+        assert close_line == (f"SET POS 255 SPE {gripper.speed_to_register(0.1)} "
+                              f"FOR {gripper.force_to_register(50.0)} GTO 1")
+        assert gripper.force_to_register(20.0) == 0 and gripper.force_to_register(235.0) == 255
+
+
+def test_close_on_an_object_reports_detection_and_width(cell_config):
+    with FakeRobotiqServer(object_register=150) as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        result = gripper.close(force=40.0)
+        assert result.object_detected and gripper.object_detected()
+        assert result.position == 150
+        assert result.width == pytest.approx(gripper.register_to_width(150))
+        assert 0.02 < result.width < 0.04  # (230 - 150) / 227 * 85 mm = 30 mm
+        server.slip()
+        time.sleep(0.1)
+        assert not gripper.object_detected()
+        assert gripper.state().object_status == 3
+
+
+def test_width_register_mapping_round_trips(cell_config):
+    gripper = RobotiqGripper(cell_config.gripper, make_guard(cell_config), dry_run=True)
+    assert gripper.width_to_register(cell_config.gripper.stroke) == 3
+    assert gripper.width_to_register(0.0) == 230
+    assert gripper.width_to_register(1.0) == 3  # clipped
+    for width in (0.0, 0.01, 0.042, 0.085):
+        assert gripper.register_to_width(gripper.width_to_register(width)) == pytest.approx(width, abs=0.0004)
+
+
+def test_move_to_width_sends_the_mapped_register(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        result = gripper.move_to_width(0.05)
+        expected = gripper.width_to_register(0.05)
+        assert any(line.startswith(f"SET POS {expected} ") for line in server.lines)
+        assert result.width == pytest.approx(0.05, abs=0.0005)
+        with pytest.raises(SafetyError, match="outside"):
+            gripper.move_to_width(0.2)
+
+
+def test_calibrate_range_reads_the_mechanical_ends(cell_config):
+    with FakeRobotiqServer(open_register=6, closed_register=221) as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        assert gripper.calibrate_range() == (6, 221)
+        assert gripper.width_to_register(0.0) == 221
+        assert gripper.width_to_register(cell_config.gripper.stroke) == 6
+
+
+def test_fault_is_reported_and_cleared(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        server.inject_fault(14)
+        with pytest.raises(GripperError, match="overcurrent"):
+            gripper.close()
+        gripper.clear_fault()
+        assert gripper.state().fault == 0 and gripper.is_active()
+        assert not gripper.close().object_detected
+
+
+def test_moving_before_activation_is_a_clear_fault(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        with pytest.raises(GripperError, match="activation bit"):
+            gripper.close()
+
+
+def test_force_above_the_cap_is_refused_before_sending(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        before = list(server.lines)
+        with pytest.raises(SafetyError, match="grip force"):
+            gripper.close(force=cell_config.limits.max_grip_force + 1)
+        assert server.lines == before
+
+
+def test_no_reply_times_out_with_a_clear_error(cell_config):
+    with FakeRobotiqServer() as server:
+        server.silent_on = "GET"
+        gripper = make_gripper(cell_config, server, timeout=0.3)
+        start = time.monotonic()
+        with pytest.raises(GripperError, match="no reply"):
+            gripper.is_active()
+        assert time.monotonic() - start < 2.0
+
+
+def test_dropped_connection_is_reported(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        server.drop_on = "SET POS"
+        with pytest.raises(ConnectionLostError, match="closed the connection"):
+            gripper.close()
+        with pytest.raises(ConnectionLostError, match="not connected"):
+            gripper.open()
+
+
+def test_dry_run_sends_nothing(cell_config):
+    with FakeRobotiqServer() as server:
+        config = replace(cell_config.gripper, host="127.0.0.1", port=server.port)
+        gripper = RobotiqGripper(config, make_guard(cell_config), dry_run=True)
+        gripper.connect()
+        gripper.activate()
+        assert gripper.close().object_detected is False
+        assert gripper.open().width == pytest.approx(cell_config.gripper.stroke)
+        assert server.connections == 0 and server.lines == []
+        assert gripper.commands[-1].startswith("SET POS 0 ")
