@@ -1,0 +1,118 @@
+"""The ShapeGrasp baseline as the SegGrasp paper describes it: convex decomposition only, part chosen by the
+detector, one grasp at the chosen part's centroid, top-down, with a fixed rotation.
+
+ShapeGrasp reasons over the convex parts of one decomposition. Here the parts are those of the decomposition
+sweep's partition nearest `SHAPEGRASP_THRESHOLD`, and the part for prompt k is the one with the highest
+area-weighted mean of the detector's votes for k (the same coarse vote matrix S the other methods start from), so
+the comparison isolates the geometry: whole convex parts and a fixed top-down grasp instead of GeoFusion and the
+antipodal sampler. Its face labels (for mIoU) give every part its best-voted prompt.
+"""
+
+from __future__ import annotations
+
+import logging
+from typing import Sequence
+
+import numpy as np
+import trimesh
+
+from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+from seggrasp.labels import UNKNOWN
+
+LOG = logging.getLogger(__name__)
+
+#: CoACD concavity threshold of the single decomposition ShapeGrasp uses (nearest partition of the sweep).
+SHAPEGRASP_THRESHOLD = 0.1
+#: Fixed closing direction of the top-down grasp, world frame (the approach is always world -z).
+SHAPEGRASP_CLOSING_AXIS = np.array([1.0, 0.0, 0.0])
+#: Height of the fingertips above the table top when a part's centroid is too low to grasp at.
+TABLE_CLEARANCE = 0.005
+
+
+def choose_partition(thresholds: Sequence[float], threshold: float = SHAPEGRASP_THRESHOLD) -> int:
+    """Index of the partition whose decomposition threshold is nearest `threshold`."""
+    if len(thresholds) == 0:
+        raise ValueError("no partitions to choose from")
+    return int(np.argmin(np.abs(np.asarray(thresholds, dtype=np.float64) - threshold)))
+
+
+def part_votes(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndarray) -> np.ndarray:
+    """(n_parts, P) area-weighted mean vote of each convex part for each prompt."""
+    scores = np.asarray(scores, dtype=np.float64)
+    part_of_face = np.asarray(part_of_face, dtype=np.int64)
+    face_areas = np.asarray(face_areas, dtype=np.float64)
+    if scores.ndim != 2 or not (len(scores) == len(part_of_face) == len(face_areas)):
+        raise ValueError(
+            f"need per-face scores (F, P), parts (F,) and areas (F,); got {scores.shape}, {part_of_face.shape}, "
+            f"{face_areas.shape}"
+        )
+    n_parts = int(part_of_face.max()) + 1
+    weighted = np.zeros((n_parts, scores.shape[1]))
+    np.add.at(weighted, part_of_face, scores * face_areas[:, None])
+    area = np.bincount(part_of_face, weights=face_areas, minlength=n_parts)
+    return weighted / np.maximum(area, 1e-18)[:, None]
+
+
+def shapegrasp_labels(votes: np.ndarray, part_of_face: np.ndarray) -> np.ndarray:
+    """Per-face labels: each part takes its best-voted prompt, -1 for parts without any vote."""
+    best = np.argmax(votes, axis=1).astype(np.int64)
+    best[~(votes > 0).any(axis=1)] = UNKNOWN
+    return best[np.asarray(part_of_face, dtype=np.int64)]
+
+
+def shapegrasp_grasps(
+    mesh: trimesh.Trimesh,
+    votes: np.ndarray,
+    part_of_face: np.ndarray,
+    T_world_obj: np.ndarray,
+    gripper: GripperGeometry = ROBOTIQ_2F85,
+) -> list[GraspSet]:
+    """One grasp per prompt (object frame), empty where no part received a vote for that prompt.
+
+    The grasp sits at the chosen part's centroid (raised so the fingertips clear the table, whose top is taken as
+    the object's lowest point in the world), approaches straight down in the world and closes along the fixed
+    world axis `SHAPEGRASP_CLOSING_AXIS`. Its contacts are where the fingers, closing from fully open along that
+    line, first meet the mesh.
+    """
+    part_of_face = np.asarray(part_of_face, dtype=np.int64)
+    T_world_obj = np.asarray(T_world_obj, dtype=np.float64)
+    T_obj_world = np.linalg.inv(T_world_obj)
+    world_vertices = mesh.vertices @ T_world_obj[:3, :3].T + T_world_obj[:3, 3]
+    table_z = float(world_vertices[:, 2].min())
+    lowest_origin = table_z + gripper.tip_beyond_origin + TABLE_CLEARANCE
+    closing = SHAPEGRASP_CLOSING_AXIS / np.linalg.norm(SHAPEGRASP_CLOSING_AXIS)
+    approach = np.array([0.0, 0.0, -1.0])
+    rotation = np.column_stack([closing, np.cross(approach, closing), approach])
+
+    grasps = []
+    for k in range(votes.shape[1]):
+        if not (votes[:, k] > 0).any():
+            grasps.append(GraspSet.empty())
+            continue
+        part = int(np.argmax(votes[:, k]))
+        faces = np.flatnonzero(part_of_face == part)
+        areas = mesh.area_faces[faces]
+        centroid = mesh.triangles_center[faces].T @ areas / max(float(areas.sum()), 1e-18)
+        T_world_grasp = np.eye(4)
+        T_world_grasp[:3, :3] = rotation
+        T_world_grasp[:3, 3] = T_world_obj[:3, :3] @ centroid + T_world_obj[:3, 3]
+        T_world_grasp[2, 3] = max(T_world_grasp[2, 3], lowest_origin)
+        T_obj_grasp = T_obj_world @ T_world_grasp
+        contacts, width = _closing_contacts(mesh, T_obj_grasp, gripper.max_opening)
+        grasps.append(GraspSet(T_obj_grasp[None], [width], [float(votes[part, k])], contacts[None]))
+        LOG.debug("shapegrasp: prompt %d -> part %d of %d, width %.3f", k, part, votes.shape[0], width)
+    return grasps
+
+
+def _closing_contacts(mesh: trimesh.Trimesh, T_obj_grasp: np.ndarray, opening: float) -> tuple[np.ndarray, float]:
+    """Where two fingers closing from `opening` along the grasp's x axis first touch the mesh (object frame)."""
+    origin, x_axis = T_obj_grasp[:3, 3], T_obj_grasp[:3, 0]
+    starts = np.array([origin - 0.5 * opening * x_axis, origin + 0.5 * opening * x_axis])
+    directions = np.array([x_axis, -x_axis])
+    locations, ray_index, _ = mesh.ray.intersects_location(starts, directions, multiple_hits=False)
+    contacts = starts.copy()  # a finger that meets nothing closes to the centre line
+    contacts[:] = origin
+    for location, ray in zip(locations, ray_index):
+        if np.dot(location - starts[ray], directions[ray]) <= opening:
+            contacts[ray] = location
+    return contacts, float(np.linalg.norm(contacts[1] - contacts[0]))

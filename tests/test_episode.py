@@ -1,0 +1,125 @@
+"""The episode runner on the simulated cell with labelled primitives: oracle, coarse and shapegrasp episodes,
+the no-grasp slot, outcome reuse and the table plane."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from seggrasp.baselines import part_votes, shapegrasp_grasps, shapegrasp_labels
+from seggrasp.episode import (
+    DetectorSpec,
+    EpisodeContext,
+    ObjectSegmenter,
+    run_episode,
+    table_plane_in_object_frame,
+)
+from sim.cell import SimCell
+from sim.primitives import primitive_object
+
+IMAGE = (160, 120)
+
+
+@pytest.fixture(scope="module")
+def cylinder(tmp_path_factory):
+    return primitive_object("cylinder", (0.03, 0.11), tmp_path_factory.mktemp("objects"), mass=0.2)
+
+
+@pytest.fixture(scope="module")
+def cell(cylinder):
+    with SimCell([cylinder], embodiment="floating", seed=0, image_size=IMAGE) as sim_cell:
+        yield sim_cell
+
+
+def test_table_plane_passes_through_the_lowest_point() -> None:
+    mesh = trimesh.creation.box((0.04, 0.06, 0.1))
+    T = trimesh.transformations.rotation_matrix(0.4, [1, 1, 0])
+    T[:3, 3] = [0.5, 0.1, 0.3]
+    plane = table_plane_in_object_frame(mesh, T)
+    heights = mesh.vertices @ plane[:3] + plane[3]
+    world_z = (mesh.vertices @ T[:3, :3].T + T[:3, 3])[:, 2]
+    assert heights.min() == pytest.approx(0.0, abs=1e-12)
+    assert np.allclose(heights, world_z - world_z.min())
+
+
+def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, cylinder) -> None:
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    records = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side", "top"], top_k=3, seed=0)
+    assert [(r.prompt, r.rank) for r in records] == [("side", 0), ("side", 1), ("side", 2), ("top", 0), ("top", 1),
+                                                      ("top", 2)]
+    side, top = records[:3], records[3:]
+    for r in side:
+        assert r.method == "oracle" and r.detector == "ground-truth"
+        assert r.executed and r.contacts_on_part and r.touched_on_part
+        assert r.lifted and r.success and r.lift_height > 0.15
+        assert len(r.T_world_grasp) == 4 and len(r.quaternion_xyzw) == 4
+    assert side[0].grasp_score >= side[1].grasp_score >= side[2].grasp_score
+    # both contacts of an antipodal grasp can never lie on the flat top face: nothing to execute
+    for r in top:
+        assert not r.executed and r.n_candidates == 0 and r.success is False and r.contacts_on_part is False
+
+
+def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    cache: dict = {}
+    first = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, outcome_cache=cache)
+    again = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, outcome_cache=cache)
+    assert len(cache) == 2
+    assert not any(r.reused_outcome for r in first) and all(r.reused_outcome for r in again)
+    assert [r.lift_height for r in first] == [r.lift_height for r in again]
+
+
+def test_coarse_episode_names_its_detector_and_executes_on_voted_faces(cell, cylinder) -> None:
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    streamed = []
+    records = run_episode(cell, context, "coarse", DetectorSpec(preset="perfect"), targets=["side"], top_k=2,
+                          on_record=streamed.append)
+    assert streamed == records
+    assert all(r.method == "coarse" and r.detector == "simulated:perfect" for r in records)
+    assert all(r.executed for r in records)
+
+
+def test_unknown_method_and_target_are_rejected(cell, cylinder) -> None:
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    with pytest.raises(ValueError, match="unknown method"):
+        run_episode(cell, context, "magic", DetectorSpec())
+    with pytest.raises(ValueError, match="not among the prompts"):
+        run_episode(cell, context, "oracle", DetectorSpec(), targets=["handle"])
+    unlabelled = EpisodeContext(cylinder.object_id, "cylinder", ["side"], scene_seed=2)
+    with pytest.raises(ValueError, match="ground-truth"):
+        run_episode(cell, unlabelled, "oracle", DetectorSpec())
+
+
+def test_shapegrasp_grasps_top_down_at_the_voted_part() -> None:
+    """Two stacked boxes as two convex parts; votes for prompt 0 on the upper one, prompt 1 on the lower one."""
+    lower = trimesh.creation.box((0.05, 0.05, 0.06))
+    lower.apply_translation([0, 0, 0.03])
+    upper = trimesh.creation.box((0.03, 0.03, 0.04))
+    upper.apply_translation([0, 0, 0.08])
+    mesh = trimesh.util.concatenate([lower, upper])
+    part_of_face = np.r_[np.zeros(len(lower.faces), int), np.ones(len(upper.faces), int)]
+    scores = np.zeros((len(mesh.faces), 2))
+    scores[part_of_face == 1, 0] = 1.0
+    scores[:, 1] = 0.2
+    scores[part_of_face == 0, 1] = 0.9
+    votes = part_votes(scores, part_of_face, mesh.area_faces)
+    assert np.array_equal(shapegrasp_labels(votes, part_of_face), np.where(part_of_face == 1, 0, 1))
+    T_world_obj = np.eye(4)
+    T_world_obj[:3, 3] = [0.5, 0.0, 0.0]
+    grasps = shapegrasp_grasps(mesh, votes, part_of_face, T_world_obj)
+    assert [len(g) for g in grasps] == [1, 1]
+    upper_grasp = grasps[0]
+    assert np.allclose(upper_grasp.poses[0, :3, 2], [0, 0, -1])  # approach straight down
+    assert np.allclose(upper_grasp.poses[0, :3, 0], [1, 0, 0])  # fixed closing axis
+    assert np.allclose(upper_grasp.poses[0, :2, 3], 0.0, atol=1e-9)
+    assert upper_grasp.poses[0, 2, 3] == pytest.approx(0.08, abs=0.005)  # the upper part's centroid height
+    assert upper_grasp.widths[0] == pytest.approx(0.03, abs=1e-6)  # fingers meet the upper box's sides
+    # the lower part's centroid is too low for the fingertips: the grasp is raised above the table
+    assert grasps[1].poses[0, 2, 3] >= 0.02
+
+
+def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
+    fake_votes = np.zeros((len(cylinder.mesh.faces), 3))
+    fake_votes[:, 1] = 1.0
+    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], DetectorSpec(), coarse_scores=fake_votes)
+    plan = segmenter.plan("coarse", np.eye(4))
+    assert np.all(plan.labels == 1)
