@@ -33,6 +33,10 @@ from seggrasp.objects import ObjectModel
 ENV_ID = "SegGrasp-v0"
 PROMPT_CHARSET = string.ascii_letters + string.digits + " _-'"
 PROMPT_MAX_LENGTH = 64
+#: Observation bounds: depth range of a D435 (m), intrinsics entries (px), coordinates in the cell (m).
+MAX_DEPTH = 10.0
+MAX_INTRINSIC = 1.0e4
+MAX_COORDINATE = 10.0
 #: Action bounds: position (m), rotation vector (rad), width (m).
 ACTION_LOW = np.array([0.0, -0.7, -0.05, -np.pi, -np.pi, -np.pi, 0.0], dtype=np.float32)
 ACTION_HIGH = np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, 0.085], dtype=np.float32)
@@ -125,15 +129,15 @@ class SegGraspEnv(gym.Env):
             height, width = frame.depth.shape
             entries[frame.name] = spaces.Dict({
                 "rgb": spaces.Box(0, 255, (height, width, 3), dtype=np.uint8),
-                "depth": spaces.Box(0.0, np.inf, (height, width), dtype=np.float32),
-                "K": spaces.Box(-np.inf, np.inf, (3, 3), dtype=np.float64),
-                "T_world_cam": spaces.Box(-np.inf, np.inf, (4, 4), dtype=np.float64),
+                "depth": spaces.Box(0.0, MAX_DEPTH, (height, width), dtype=np.float32),
+                "K": spaces.Box(0.0, MAX_INTRINSIC, (3, 3), dtype=np.float64),
+                "T_world_cam": spaces.Box(-MAX_COORDINATE, MAX_COORDINATE, (4, 4), dtype=np.float64),
             })
         if self.include_mesh:
             entries["mesh"] = spaces.Dict({
-                "vertices": spaces.Sequence(spaces.Box(-np.inf, np.inf, (3,), dtype=np.float64), stack=True),
+                "vertices": spaces.Sequence(spaces.Box(-MAX_COORDINATE, MAX_COORDINATE, (3,), dtype=np.float64), stack=True),
                 "faces": spaces.Sequence(spaces.Box(0, np.iinfo(np.int64).max, (3,), dtype=np.int64), stack=True),
-                "T_world_obj": spaces.Box(-np.inf, np.inf, (4, 4), dtype=np.float64),
+                "T_world_obj": spaces.Box(-MAX_COORDINATE, MAX_COORDINATE, (4, 4), dtype=np.float64),
             })
         return spaces.Dict(entries)
 
