@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from seggrasp.labels import PartLabels
+from seggrasp.io import atomic_write_json, atomic_write_text
+from seggrasp.labels import PartLabels, read_labels
+from seggrasp.mesh import load_mesh, mesh_hash
 
 
 @dataclass
@@ -33,3 +40,404 @@ class ObjectModel:
     mesh_path: Path | None = None
     collision_path: Path | None = None  # one OBJ with one `o` group per convex hull
     urdf_path: Path | None = None
+    notes: list[str] = field(default_factory=list)  # how the physics was obtained (e.g. estimated volume)
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Physical models: mass properties, convex decomposition, OBJ / URDF writing (shared by the twin generator in
+# `assets` and by `load_external_object`).
+# --------------------------------------------------------------------------------------------------------------
+log = logging.getLogger(__name__)
+
+#: Where the twin lives (the repository's `assets/` folder); override with SEGGRASP_ASSETS_DIR.
+ASSETS_DIR = Path(os.environ.get("SEGGRASP_ASSETS_DIR", Path(__file__).resolve().parents[1] / "assets"))
+#: Default cache for collision models and URDFs of external objects; override with SEGGRASP_CACHE_DIR.
+DEFAULT_CACHE_DIR = Path(os.environ.get("SEGGRASP_CACHE_DIR", Path.home() / ".cache" / "seggrasp" / "objects"))
+#: A graspable object for a 2F-85 (85 mm stroke) on a table: its largest side must lie in this range (metres).
+GRASPABLE_EXTENT_M = (0.02, 1.0)
+
+
+@dataclass(frozen=True)
+class MassProperties:
+    """Mass (kg), centre of mass (3,) and inertia tensor (3, 3) about the centre of mass, object-frame axes."""
+
+    mass: float
+    center_of_mass: np.ndarray
+    inertia: np.ndarray
+
+
+@dataclass(frozen=True)
+class CollisionConfig:
+    """CoACD settings: concavity threshold (fraction of the bounding-box diagonal), hull cap, voxel resolution."""
+
+    threshold: float = 0.06
+    max_hulls: int = 24
+    resolution: int = 2000
+    mcts_iterations: int = 100
+    preprocess: str = "auto"
+    seed: int = 0
+
+    def key(self) -> str:
+        return (f"t{self.threshold:g}-h{self.max_hulls}-r{self.resolution}-i{self.mcts_iterations}"
+                f"-p{self.preprocess}-s{self.seed}")
+
+
+def mass_properties(solid: trimesh.Trimesh, density: float) -> MassProperties:
+    """Mass properties of a closed solid of uniform `density` (kg/m^3)."""
+    if density <= 0:
+        raise ValueError(f"density must be positive, got {density}")
+    volume = float(solid.volume)
+    if not np.isfinite(volume) or volume <= 0:
+        raise ValueError(f"solid has no positive volume ({volume}); is it closed and outward-oriented?")
+    props = solid.mass_properties  # density 1
+    return MassProperties(
+        mass=volume * density,
+        center_of_mass=np.asarray(props["center_mass"], dtype=np.float64),
+        inertia=np.asarray(props["inertia"], dtype=np.float64) * density,
+    )
+
+
+def combine_mass_properties(parts: Sequence[MassProperties]) -> MassProperties:
+    """Mass properties of a rigid union of disjoint bodies (parallel-axis theorem)."""
+    mass = sum(p.mass for p in parts)
+    if mass <= 0:
+        raise ValueError("total mass must be positive")
+    com = sum(p.mass * p.center_of_mass for p in parts) / mass
+    inertia = np.zeros((3, 3))
+    for p in parts:
+        d = p.center_of_mass - com
+        inertia += p.inertia + p.mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
+    return MassProperties(mass=float(mass), center_of_mass=com, inertia=0.5 * (inertia + inertia.T))
+
+
+def convex_decomposition(mesh: trimesh.Trimesh, config: CollisionConfig = CollisionConfig()) -> list[trimesh.Trimesh]:
+    """Approximate convex decomposition with CoACD; each piece is returned as its convex hull."""
+    import coacd
+
+    coacd.set_log_level("error")
+    result = coacd.run_coacd(
+        coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
+        threshold=config.threshold,
+        max_convex_hull=config.max_hulls,
+        preprocess_mode=config.preprocess,
+        resolution=config.resolution,
+        mcts_iterations=config.mcts_iterations,
+        seed=config.seed,
+    )
+    hulls = [trimesh.Trimesh(v, f, process=False).convex_hull for v, f in result]
+    hulls = [h for h in hulls if h.volume > 0]
+    if not hulls:
+        raise ValueError("CoACD returned no convex pieces")
+    return hulls
+
+
+def obj_text(vertices: np.ndarray, faces: np.ndarray, decimals: int = 8) -> str:
+    """Wavefront OBJ text (vertices and triangles only) with fixed-decimal coordinates."""
+    fmt = f"v %.{decimals}f %.{decimals}f %.{decimals}f"
+    lines = [fmt % tuple(v) for v in np.asarray(vertices, dtype=np.float64)]
+    lines += ["f %d %d %d" % tuple(f) for f in np.asarray(faces, dtype=np.int64) + 1]
+    return "\n".join(lines) + "\n"
+
+
+def write_collision_obj(path: str | os.PathLike, hulls: Sequence[trimesh.Trimesh], decimals: int = 8) -> None:
+    """Write convex hulls as ONE OBJ with an `o hull_k` group per hull (PyBullet loads it as a compound)."""
+    chunks, offset = [], 0
+    fmt = f"v %.{decimals}f %.{decimals}f %.{decimals}f"
+    for k, hull in enumerate(hulls):
+        chunks.append(f"o hull_{k}")
+        chunks += [fmt % tuple(v) for v in np.asarray(hull.vertices, dtype=np.float64)]
+        chunks += ["f %d %d %d" % tuple(f) for f in np.asarray(hull.faces, dtype=np.int64) + 1 + offset]
+        offset += len(hull.vertices)
+    atomic_write_text(path, "\n".join(chunks) + "\n")
+
+
+def read_obj_arrays(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(vertices, faces) per `o` group of an OBJ written by `write_collision_obj` (or a single group)."""
+    groups: list[tuple[list, list]] = []
+    all_vertices: list[list[float]] = []
+    for line in Path(path).read_text().splitlines():
+        if line.startswith("o ") or (line.startswith("v ") and not groups):
+            groups.append(([], []))
+            if line.startswith("o "):
+                continue
+        if line.startswith("v "):
+            all_vertices.append([float(x) for x in line.split()[1:4]])
+        elif line.startswith("f "):
+            groups[-1][1].append([int(tok.split("/")[0]) - 1 for tok in line.split()[1:4]])
+    vertices = np.asarray(all_vertices, dtype=np.float64)
+    out = []
+    for _, faces in groups:
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        used = np.unique(faces)
+        remap = np.full(len(vertices), -1, dtype=np.int64)
+        remap[used] = np.arange(len(used))
+        out.append((vertices[used], remap[faces]))
+    return out
+
+
+def read_collision_hulls(path: str | os.PathLike) -> list[trimesh.Trimesh]:
+    """The convex hulls stored in a collision OBJ, one Trimesh per `o` group."""
+    return [trimesh.Trimesh(v, f, process=False) for v, f in read_obj_arrays(path)]
+
+
+def inertia_off_diagonal_ratio(inertia: np.ndarray) -> float:
+    """Size of the products of inertia relative to the whole tensor (Frobenius norms): what a diagonal URDF
+    inertia drops."""
+    inertia = np.asarray(inertia, dtype=np.float64)
+    return float(np.linalg.norm(inertia - np.diag(np.diag(inertia))) / np.linalg.norm(inertia))
+
+
+def urdf_text(
+    name: str,
+    visual_file: str,
+    collision_file: str,
+    props: MassProperties,
+    friction: float,
+    spinning_friction: float = 0.002,
+    rolling_friction: float = 0.0002,
+) -> str:
+    """A one-link URDF: visual mesh, compound convex collision mesh, inertial, contact friction.
+
+    The inertial frame keeps the object's axes (rpy = 0) and only the diagonal of the inertia tensor is written:
+    PyBullet reports and sets a base pose as the pose of the inertial frame, so an unrotated inertial frame makes
+    `getBasePositionAndOrientation` differ from the object pose by the centre-of-mass offset only. The products of
+    inertia that this drops are small for these objects (see `inertia_off_diagonal_ratio`).
+    """
+    moments = np.maximum(np.diag(props.inertia), 1e-12)
+
+    def vec(v: Sequence[float]) -> str:
+        return " ".join(f"{float(x):.8g}" for x in v)
+
+    return f"""<?xml version="1.0"?>
+<robot name="{name}">
+  <link name="base_link">
+    <contact>
+      <lateral_friction value="{friction:.4g}"/>
+      <spinning_friction value="{spinning_friction:.4g}"/>
+      <rolling_friction value="{rolling_friction:.4g}"/>
+    </contact>
+    <inertial>
+      <origin xyz="{vec(props.center_of_mass)}" rpy="0 0 0"/>
+      <mass value="{props.mass:.8g}"/>
+      <inertia ixx="{moments[0]:.8g}" ixy="0" ixz="0" iyy="{moments[1]:.8g}" iyz="0" izz="{moments[2]:.8g}"/>
+    </inertial>
+    <visual>
+      <geometry><mesh filename="{visual_file}" scale="1 1 1"/></geometry>
+    </visual>
+    <collision>
+      <geometry><mesh filename="{collision_file}" scale="1 1 1"/></geometry>
+    </collision>
+  </link>
+</robot>
+"""
+
+
+# --------------------------------------------------------------------------------------------------------------
+# Loaders: the bundled twin (assets/manifest.json) and external meshes.
+# --------------------------------------------------------------------------------------------------------------
+#: PyBullet-facing defaults for external objects (hard plastic).
+DEFAULT_DENSITY = 1000.0
+DEFAULT_FRICTION = 0.5
+#: Payload of a Robotiq 2F-85; heavier objects still load but are reported.
+GRIPPER_PAYLOAD_KG = 5.0
+#: Voxels along the largest side when a mesh is not watertight and its volume must be estimated.
+VOXELS_PER_EXTENT = 96
+_GENERIC_STEMS = {"textured", "model", "mesh", "scene", "nontextured", "google_16k", "poisson"}
+
+
+def _read_manifest(assets_dir: Path = ASSETS_DIR) -> dict:
+    path = Path(assets_dir) / "manifest.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"twin manifest not found: {path} (generate it with `python -m assets generate`)")
+    return json.loads(path.read_text())
+
+
+def _normalise_categories(categories: str | Sequence[str] | None, known: Sequence[str]) -> set[str] | None:
+    if categories is None:
+        return None
+    wanted = {categories} if isinstance(categories, str) else set(categories)
+    unknown = wanted - set(known)
+    if unknown:
+        raise ValueError(f"unknown categories {sorted(unknown)}; the twin has {sorted(set(known))}")
+    return wanted
+
+
+def asset_ids(categories: str | Sequence[str] | None = None, assets_dir: Path = ASSETS_DIR) -> list[str]:
+    """Ids of the twin's objects (manifest order), optionally only those of the given categories."""
+    records = _read_manifest(assets_dir)["objects"]
+    wanted = _normalise_categories(categories, [r["category"] for r in records])
+    return [r["id"] for r in records if wanted is None or r["category"] in wanted]
+
+
+def load_asset(object_id: str, assets_dir: Path = ASSETS_DIR) -> ObjectModel:
+    """Load one object of the twin: mesh, exact part labels, physics (mass, inertia, friction), hulls, URDF path."""
+    assets_dir = Path(assets_dir)
+    records = {r["id"]: r for r in _read_manifest(assets_dir)["objects"]}
+    if object_id not in records:
+        raise ValueError(f"unknown object id {object_id!r}; the twin has {sorted(records)}")
+    record = records[object_id]
+    files = {key: assets_dir / rel for key, rel in record["files"].items()}
+    vertices, faces = read_obj_arrays(files["mesh"])[0]
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if mesh_hash(mesh) != record["mesh_hash"]:
+        raise ValueError(f"{files['mesh']} does not match the manifest (mesh hash differs); regenerate the twin")
+    labels = read_labels(files["labels"])
+    labels.check_faces(len(mesh.faces), what=str(files["mesh"]))
+    return ObjectModel(
+        object_id=object_id,
+        category=record["category"],
+        mesh=mesh,
+        prompts=list(record["prompts"]),
+        mass=float(record["mass"]),
+        friction=float(record["friction"]),
+        center_of_mass=np.asarray(record["center_of_mass"], dtype=np.float64),
+        inertia=np.asarray(record["inertia"], dtype=np.float64),
+        collision_hulls=read_collision_hulls(files["collision"]),
+        labels=labels,
+        mesh_path=files["mesh"],
+        collision_path=files["collision"],
+        urdf_path=files["urdf"],
+    )
+
+
+def load_asset_set(categories: str | Sequence[str] | None = None, assets_dir: Path = ASSETS_DIR) -> list[ObjectModel]:
+    """All objects of the twin (manifest order: category by category), optionally filtered by category."""
+    return [load_asset(i, assets_dir) for i in asset_ids(categories, assets_dir)]
+
+
+def _voxel_mass_properties(mesh: trimesh.Trimesh, density: float) -> tuple[MassProperties, float]:
+    """Mass properties of the filled voxelisation of a (possibly open) surface; returns them and the voxel pitch."""
+    pitch = float(mesh.extents.max()) / VOXELS_PER_EXTENT
+    grid = mesh.voxelized(pitch).fill()
+    centres = np.asarray(grid.points, dtype=np.float64)
+    if len(centres) == 0:
+        raise ValueError("cannot estimate a volume: the voxelised mesh is empty")
+    cell_mass = density * pitch**3
+    mass = cell_mass * len(centres)
+    com = centres.mean(axis=0)
+    d = centres - com
+    # point masses plus each cube's own inertia (m a^2 / 6 about each axis)
+    inertia = cell_mass * (np.eye(3) * np.einsum("ij,ij->", d, d) - d.T @ d) + np.eye(3) * mass * pitch**2 / 6.0
+    return MassProperties(mass=float(mass), center_of_mass=com, inertia=inertia), pitch
+
+
+def estimate_mass_properties(mesh: trimesh.Trimesh, density: float) -> tuple[MassProperties, str]:
+    """Mass properties of a scanned surface and a note saying how they were obtained.
+
+    Watertight meshes use the exact enclosed volume; open scans are closed by filling small holes if that makes
+    them watertight, otherwise their filled voxelisation is used (an over-estimate of up to one voxel layer).
+    """
+    if mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0:
+        return mass_properties(mesh, density), "exact volume of the watertight mesh"
+    patched = mesh.copy()
+    patched.fill_holes()
+    if patched.is_watertight and patched.is_winding_consistent and patched.volume > 0:
+        return mass_properties(patched, density), "volume after filling holes in the scan"
+    props, pitch = _voxel_mass_properties(mesh, density)
+    return props, f"mesh is not watertight: volume from its filled voxelisation (pitch {pitch * 1000:.2f} mm)"
+
+
+def load_external_object(
+    mesh_path: str | os.PathLike,
+    labels_path: str | os.PathLike | None = None,
+    prompts: Sequence[str] | None = None,
+    density: float = DEFAULT_DENSITY,
+    friction: float = DEFAULT_FRICTION,
+    cache_dir: str | os.PathLike | None = None,
+    mass: float | None = None,
+    object_id: str | None = None,
+    category: str = "external",
+    collision: CollisionConfig = CollisionConfig(
+        threshold=0.08, max_hulls=16, resolution=1000, mcts_iterations=60, preprocess="on"
+    ),
+) -> ObjectModel:
+    """Make any mesh file a physical object of the same kind as the twin's.
+
+    The mesh (metres; its size is checked) is moved into the twin's frame convention (footprint centre at the
+    origin, lowest point at z = 0, face order kept) and written with its CoACD collision model (cached by mesh
+    hash and settings) and a one-link URDF into `cache_dir`. Mass comes from `density` times the estimated volume,
+    or from `mass` if given (then the density is derived). `labels_path` holds one label per face of the file;
+    `prompts` (default: the label file's part names) fixes label order: label k = prompt k.
+    Raises ValueError for what cannot be made physical: absurd or ungraspable size, no volume, no convex pieces.
+    """
+    mesh_path = Path(mesh_path)
+    if density <= 0 or not np.isfinite(density):
+        raise ValueError(f"density must be a positive number of kg/m^3, got {density}")
+    if not 0.0 < friction <= 2.0:
+        raise ValueError(f"friction coefficient must be in (0, 2], got {friction}")
+    if mass is not None and not mass > 0:
+        raise ValueError(f"mass must be positive, got {mass}")
+    prepared = load_mesh(mesh_path)
+    largest = float(prepared.mesh.extents.max())
+    if not GRASPABLE_EXTENT_M[0] <= largest <= GRASPABLE_EXTENT_M[1]:
+        raise ValueError(
+            f"{mesh_path}: {largest:.3f} m across; a tabletop object for a parallel gripper must be "
+            f"{GRASPABLE_EXTENT_M[0]}-{GRASPABLE_EXTENT_M[1]} m (check the units of the file)"
+        )
+    raw = trimesh.load(mesh_path, force="mesh", process=False, skip_materials=True)
+    lower, upper = prepared.mesh.bounds
+    shift = np.array([-(lower[0] + upper[0]) / 2, -(lower[1] + upper[1]) / 2, -lower[2]])
+    mesh = trimesh.Trimesh(np.asarray(raw.vertices, dtype=np.float64) + shift, np.asarray(raw.faces), process=False)
+    work = prepared.mesh.copy()
+    work.apply_translation(shift)
+
+    labels = None
+    if labels_path is not None:
+        file_labels = read_labels(labels_path)
+        file_labels.check_faces(len(mesh.faces), what=str(mesh_path))
+        prompts = list(file_labels.parts) if prompts is None else list(prompts)
+        labels = PartLabels(prompts, file_labels.remap_to(prompts))
+    prompts = [] if prompts is None else [str(p) for p in prompts]
+
+    notes = []
+    props, how = estimate_mass_properties(work, density)
+    notes.append(f"mass: {how}")
+    if mass is not None:
+        scale = mass / props.mass
+        props = MassProperties(mass, props.center_of_mass, props.inertia * scale)
+        notes.append(f"mass fixed at {mass} kg (effective density {density * scale:.0f} kg/m^3)")
+    if props.mass > GRIPPER_PAYLOAD_KG:
+        log.warning("%s: %.2f kg exceeds the 2F-85 payload of %.1f kg", mesh_path, props.mass, GRIPPER_PAYLOAD_KG)
+        notes.append(f"heavier than the gripper payload ({GRIPPER_PAYLOAD_KG} kg)")
+
+    digest = mesh_hash(mesh)
+    name = object_id or (mesh_path.parent.name if mesh_path.stem.lower() in _GENERIC_STEMS else mesh_path.stem)
+    entry = Path(cache_dir if cache_dir is not None else DEFAULT_CACHE_DIR) / f"{name}-{digest[:12]}"
+    entry.mkdir(parents=True, exist_ok=True)
+    local_mesh = entry / "mesh.obj"
+    if not local_mesh.is_file():
+        atomic_write_text(local_mesh, obj_text(mesh.vertices, mesh.faces))
+    collision_path = entry / f"collision-{hashlib.sha256(collision.key().encode()).hexdigest()[:10]}.obj"
+    if collision_path.is_file():
+        hulls = read_collision_hulls(collision_path)
+    else:
+        log.info("running CoACD on %s (%d faces); cached in %s", mesh_path, len(work.faces), collision_path)
+        try:
+            hulls = convex_decomposition(work, collision)
+        except ValueError as exc:
+            raise ValueError(f"{mesh_path}: no collision model: {exc}") from exc
+        write_collision_obj(collision_path, hulls)
+    urdf_path = entry / "object.urdf"
+    atomic_write_text(urdf_path, urdf_text(name, local_mesh.name, collision_path.name, props, friction))
+    atomic_write_json(entry / "info.json", {
+        "source": str(mesh_path.resolve()), "shift": shift.tolist(), "mass": props.mass, "notes": notes,
+        "collision": collision.key(), "n_hulls": len(hulls),
+    })
+    for note in notes:
+        log.info("%s: %s", name, note)
+    return ObjectModel(
+        object_id=name,
+        category=category,
+        mesh=mesh,
+        prompts=prompts,
+        mass=float(props.mass),
+        friction=float(friction),
+        center_of_mass=props.center_of_mass,
+        inertia=props.inertia,
+        collision_hulls=hulls,
+        labels=labels,
+        mesh_path=local_mesh,
+        collision_path=collision_path,
+        urdf_path=urdf_path,
+        notes=notes,
+    )

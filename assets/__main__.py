@@ -1,0 +1,66 @@
+"""`python -m assets list|generate|gallery`: the SegGraspSet twin's command line."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from assets.generate import ASSETS_DIR, generate_set
+from seggrasp.objects import asset_ids, load_asset, load_asset_set
+
+GALLERY_PATH = ASSETS_DIR / "gallery.png"
+
+
+def _list(args: argparse.Namespace) -> int:
+    models = [load_asset(i) for i in asset_ids(args.category)]
+    print(f"{'id':24s} {'category':12s} {'prompts':22s} {'mass kg':>8s} {'mu':>5s} {'size mm':>18s} {'faces':>6s} {'hulls':>5s}")
+    for m in models:
+        size = "x".join(f"{d * 1000:.0f}" for d in m.mesh.extents)
+        print(f"{m.object_id:24s} {m.category:12s} {','.join(m.prompts):22s} {m.mass:8.3f} {m.friction:5.2f} "
+              f"{size:>18s} {len(m.mesh.faces):6d} {len(m.collision_hulls):5d}")
+    print(f"{len(models)} objects in {len({m.category for m in models})} categories")
+    return 0
+
+
+def _generate(args: argparse.Namespace) -> int:
+    manifest = generate_set(seed=args.seed, object_ids=args.only or None, collision=not args.no_collision)
+    print(f"wrote {len(manifest['objects'])} objects and {ASSETS_DIR / 'manifest.json'} (seed {args.seed})")
+    return 0
+
+
+def _gallery(args: argparse.Namespace) -> int:
+    from assets.gallery import gallery_png
+
+    path = gallery_png(load_asset_set(args.category), args.out, columns=args.columns)
+    print(f"wrote {path}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point; returns the process exit code."""
+    parser = argparse.ArgumentParser(prog="python -m assets", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_list = sub.add_parser("list", help="list the objects of the twin")
+    p_list.add_argument("--category", action="append", help="only this category (repeatable)")
+    p_gen = sub.add_parser("generate", help="regenerate meshes, labels, collision models, URDFs and the manifest")
+    p_gen.add_argument("--seed", type=int, default=0, help="shape jitter seed (0 = the committed set)")
+    p_gen.add_argument("--only", action="append", metavar="ID", help="regenerate only this object (repeatable)")
+    p_gen.add_argument("--no-collision", action="store_true", help="keep the existing collision.obj (skip CoACD)")
+    p_gal = sub.add_parser("gallery", help="render all objects coloured by part into a PNG")
+    p_gal.add_argument("--out", type=Path, default=GALLERY_PATH)
+    p_gal.add_argument("--columns", type=int, default=6)
+    p_gal.add_argument("--category", action="append", help="only this category (repeatable)")
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    handlers = {"list": _list, "generate": _generate, "gallery": _gallery}
+    try:
+        return handlers[args.command](args)
+    except (ValueError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
