@@ -21,6 +21,7 @@ through the pixel centre hits (tests/test_render.py checks this against trimesh 
 
 from __future__ import annotations
 
+import atexit
 import logging
 import math
 import os
@@ -220,6 +221,15 @@ class ViewRenderer:
 
 _shared_renderers: dict[tuple[int, int, float], ViewRenderer] = {}
 _shared_lock = threading.Lock()
+
+
+@atexit.register
+def close_shared_renderers() -> None:
+    """Release the GL contexts of `render_views` (also run at exit, before PyOpenGL is torn down)."""
+    with _shared_lock:
+        for renderer in _shared_renderers.values():
+            renderer.close()
+        _shared_renderers.clear()
 
 
 def render_views(mesh: trimesh.Trimesh, poses: list[np.ndarray], image_size: int = DEFAULT_IMAGE_SIZE) -> list[View]:

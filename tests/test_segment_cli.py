@@ -1,0 +1,186 @@
+"""The segmentation pipeline (refine="none") and the `python -m seggrasp segment` command end to end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from trimesh.transformations import rotation_matrix
+
+from seggrasp.__main__ import main
+from seggrasp.detect.base import Detections
+from seggrasp.detect.simulated import SimulatedDetector
+from seggrasp.labels import PartLabels, read_labels, write_labels
+from seggrasp.mesh import prepare_mesh
+from seggrasp.metrics import shape_miou
+from seggrasp.segment import SegmentationConfig, check_prompts, segment
+
+PARTS = ["handle", "head"]
+FAST = SegmentationConfig(n_views=6, image_size=128, refine="none")
+
+
+def _hammer() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Vertices, faces and per-face labels (0 = handle, 1 = head) of a small hammer, about a thousand faces."""
+    handle = trimesh.creation.cylinder(0.012, 0.25, sections=16)
+    handle.apply_transform(rotation_matrix(np.pi / 2, [0, 1, 0]))
+    head = trimesh.creation.box([0.03, 0.03, 0.1])
+    head.apply_translation([0.14, 0, 0])
+    pieces = []
+    for piece in (handle, head):
+        vertices, faces = trimesh.remesh.subdivide_to_size(piece.vertices, piece.faces, max_edge=0.02)
+        pieces.append(trimesh.Trimesh(vertices, faces))
+    mesh = trimesh.util.concatenate(pieces)
+    labels = np.concatenate([np.full(len(p.faces), k) for k, p in enumerate(pieces)])
+    return np.asarray(mesh.vertices), np.asarray(mesh.faces), labels
+
+
+class _WholeImageDetector:
+    """Boxes the whole image for prompt 0 in every view with confidence 0.5; nothing for other prompts."""
+
+    name = "whole-image"
+
+    def detect(self, views, prompts):
+        return [Detections(np.array([[0.0, 0.0, v.size[1], v.size[0]]]), np.array([0.5]), np.array([0]))
+                for v in views]
+
+
+def test_segment_coarse_result() -> None:
+    vertices, faces, labels = _hammer()
+    prepared = prepare_mesh(vertices, faces)
+    gt = PartLabels(PARTS, labels)
+    result = segment(prepared, PARTS, SimulatedDetector(gt, preset="perfect"), FAST)
+    n_faces = len(faces)
+    assert result.prompts == PARTS
+    assert result.labels.shape == (n_faces,) and result.labels.dtype == np.int64
+    assert result.scores.shape == (n_faces, 2)
+    np.testing.assert_array_equal(result.scores, result.coarse_scores)  # no refinement
+    np.testing.assert_array_equal(result.labels, result.coarse_labels)
+    assert len(result.views) == len(result.detections) == 6
+    assert result.views[0].size == (128, 128)
+    assert result.detector == "simulated-perfect" and result.refine == "none" and result.partitions == []
+    assert set(result.timings) == {"render", "detect", "vote"}
+    assert all(seconds >= 0 for seconds in result.timings.values())
+    assert shape_miou(result.labels, labels, 2, trimesh.Trimesh(vertices, faces).area_faces) > 0.6
+    # Faces no box covers are unknown.
+    unvoted = ~(result.scores > 0).any(axis=1)
+    np.testing.assert_array_equal(result.labels[unvoted], -1)
+
+
+def test_segment_reports_labels_in_input_face_order() -> None:
+    """Shuffling the file's faces and adding degenerate ones permutes the labels the same way."""
+    vertices, faces, labels = _hammer()
+    reference = segment(prepare_mesh(vertices, faces), PARTS, _WholeImageDetector(), FAST)
+
+    rng = np.random.default_rng(0)
+    order = rng.permutation(len(faces))
+    collapsed = np.array([[0, 0, 1], [5, 6, 5]])  # zero-area faces, dropped by the repair
+    shuffled_faces = np.concatenate([faces[order[:10]], collapsed, faces[order[10:]]])
+    prepared = prepare_mesh(vertices, shuffled_faces)
+    assert prepared.n_faces == len(faces) and prepared.n_source_faces == len(faces) + 2
+    result = segment(prepared, PARTS, _WholeImageDetector(), FAST)
+    assert result.labels.shape == (len(faces) + 2,)
+    kept = np.r_[0:10, 12:len(faces) + 2]
+    np.testing.assert_array_equal(result.labels[kept], reference.labels[order])
+    np.testing.assert_allclose(result.scores[kept], reference.scores[order])
+    assert (result.labels == 0).sum() > 0.5 * len(faces)  # the whole-image box covers every visible face
+
+
+def test_segment_is_deterministic() -> None:
+    vertices, faces, labels = _hammer()
+    prepared = prepare_mesh(vertices, faces)
+    gt = PartLabels(PARTS, labels)
+    first = segment(prepared, PARTS, SimulatedDetector(gt, seed=4), FAST)
+    second = segment(prepared, PARTS, SimulatedDetector(gt, seed=4), FAST)
+    np.testing.assert_array_equal(first.scores, second.scores)
+
+
+def test_prompt_and_config_checks() -> None:
+    assert check_prompts([" handle ", "head"]) == ["handle", "head"]
+    for bad, message in (([], "at least one"), (["handle", ""], "empty"), (["a", "A"], "distinct"),
+                         ("handle", "single string")):
+        with pytest.raises(ValueError, match=message):
+            check_prompts(bad)
+    with pytest.raises(ValueError, match="n_views"):
+        SegmentationConfig(n_views=0)
+    with pytest.raises(ValueError, match="image_size"):
+        SegmentationConfig(image_size=4)
+
+
+@pytest.fixture(scope="module")
+def hammer_files(tmp_path_factory) -> tuple[Path, Path, np.ndarray]:
+    folder = tmp_path_factory.mktemp("hammer")
+    vertices, faces, labels = _hammer()
+    mesh_path, labels_path = folder / "hammer.obj", folder / "hammer_gt.json"
+    trimesh.Trimesh(vertices, faces, process=False).export(mesh_path)
+    write_labels(labels_path, PartLabels(PARTS, labels))
+    return mesh_path, labels_path, labels
+
+
+def test_cli_end_to_end(hammer_files, tmp_path: Path, capsys) -> None:
+    mesh_path, labels_path, labels = hammer_files
+    out = tmp_path / "result"
+    code = main(["segment", str(mesh_path), "--prompt", "head", "--prompt", "handle", "--labels", str(labels_path),
+                 "--preset", "perfect", "--views", "6", "--image-size", "128", "--refine", "none", "--out", str(out)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "simulated-perfect" in printed and "mIoU" in printed and "head" in printed
+
+    written = read_labels(out / "labels.json")
+    assert written.parts == ["head", "handle"]  # parts are the prompts, in order
+    assert written.n_faces == len(labels)
+    scores = np.load(out / "scores.npy")
+    assert scores.shape == (len(labels), 2)
+    np.testing.assert_array_equal(written.face_labels[scores.max(axis=1) > 0], scores.argmax(axis=1)[scores.max(axis=1) > 0])
+    # Ground truth is matched to prompts by name: prompt 0 is "head" = gt part 1.
+    truth = np.where(labels == 1, 0, 1)
+    agreement = (written.face_labels == truth)[written.face_labels >= 0].mean()
+    assert agreement > 0.75
+
+    coloured = trimesh.load(out / "segmented.ply", process=False)
+    assert len(coloured.faces) == len(labels)
+    for picture in ("views.png", "labels.png"):
+        assert (out / picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not (out / "partitions.png").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["detector"] == "simulated-perfect" and summary["refine"] == "none"
+    assert set(summary["evaluation"]["final_area"]["part_iou"]) == {"head", "handle"}
+    assert 0.0 <= summary["evaluation"]["final_area"]["miou"] <= 1.0
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--labels", "{missing}"], "label file not found"),
+        (["--labels", "{short}"], "face labels but the mesh"),
+        ([], "needs ground-truth part labels"),
+        (["--labels", "{labels}", "--detector", "owlv2"], "weights"),
+        (["--labels", "{labels}", "--workers", "0"], "workers"),
+    ],
+)
+def test_cli_bad_input_exits_2(hammer_files, tmp_path: Path, capsys, extra: list[str], message: str) -> None:
+    mesh_path, labels_path, labels = hammer_files
+    short = tmp_path / "short.json"
+    write_labels(short, PartLabels(PARTS, labels[:5]))
+    paths = {"missing": tmp_path / "nope.json", "short": short, "labels": labels_path}
+    extra = [arg.format(**paths) for arg in extra]
+    code = main(["segment", str(mesh_path), "--prompt", "handle", "--views", "2", "--image-size", "32",
+                 "--refine", "none", "--out", str(tmp_path / "out"), *extra])
+    assert code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_cli_subprocess_bad_mesh_has_no_traceback(tmp_path: Path) -> None:
+    broken = tmp_path / "broken.ply"
+    broken.write_text("not a mesh at all")
+    completed = subprocess.run(
+        [sys.executable, "-m", "seggrasp", "segment", str(broken), "--prompt", "handle", "--out", str(tmp_path / "o")],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert completed.returncode == 2
+    assert "error:" in completed.stderr and "broken.ply" in completed.stderr
+    assert "Traceback" not in completed.stderr
