@@ -1,0 +1,352 @@
+"""Segmentation benchmark: per-stage times and mIoU on labelled meshes, cold and warm decomposition cache.
+
+    python bench/bench_seg.py                              # fast mode, twin + primitive meshes, cold then warm
+    python bench/bench_seg.py --compare reference          # fast vs the paper's literal sweep, same coarse scores
+    python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
+
+Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
+are computed once per mesh, so every mode sees the same views, boxes and seeds. Cold runs use a fresh cache folder
+per (mesh, mode); the warm run repeats the default mode on the cache the cold run filled. Every (mesh, mode)
+decomposition runs in a forked child process so that its peak memory (max RSS, including its CoACD workers) can be
+reported. Records are appended to a JSON Lines file (--out) and a re-run with --resume skips what is recorded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import os
+import resource
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from seggrasp.decompose import DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
+from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
+from seggrasp.fusion import NORMALISATIONS, REFINE_MODES, refine_scores  # noqa: E402
+from seggrasp.labels import PartLabels, read_labels  # noqa: E402
+from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
+from seggrasp.render import camera_rig, render_views  # noqa: E402
+from seggrasp.vote import labels_from_scores, vote  # noqa: E402
+
+ASSETS = Path(__file__).resolve().parents[1] / "assets"
+
+
+@dataclass
+class LabelledMesh:
+    name: str
+    category: str
+    mesh: trimesh.Trimesh
+    labels: PartLabels
+
+
+# ------------------------------------------------------------------------------------------------- datasets
+
+
+def _assemble(name: str, category: str, parts: list[tuple[str, trimesh.Trimesh]]) -> LabelledMesh:
+    """One mesh made of distinct primitive parts; each face is labelled with the part it came from."""
+    mesh = trimesh.util.concatenate([part for _, part in parts])
+    face_labels = np.concatenate([np.full(len(part.faces), k) for k, (_, part) in enumerate(parts)])
+    return LabelledMesh(name, category, mesh, PartLabels([n for n, _ in parts], face_labels))
+
+
+def _placed(mesh: trimesh.Trimesh, rotation_axis=None, angle=0.0, offset=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
+    if rotation_axis is not None:
+        mesh.apply_transform(trimesh.transformations.rotation_matrix(angle, rotation_axis))
+    mesh.apply_translation(offset)
+    return mesh
+
+
+def primitive_meshes() -> list[LabelledMesh]:
+    """Labelled meshes built from trimesh primitives (distinct parts, 1-4k faces)."""
+    mug = _assemble("prim_mug", "mug", [
+        ("body", trimesh.creation.cylinder(radius=0.04, height=0.1, sections=64)),
+        ("handle", _placed(trimesh.creation.torus(0.03, 0.007, major_sections=48, minor_sections=16),
+                           [1, 0, 0], np.pi / 2, (0.055, 0, 0))),
+    ])
+    hammer = _assemble("prim_hammer", "hammer", [
+        ("handle", trimesh.creation.cylinder(radius=0.012, height=0.25, sections=32)),
+        ("head", _placed(trimesh.creation.box([0.11, 0.03, 0.03]).subdivide().subdivide(), offset=(0.0, 0.0, 0.14))),
+    ])
+    pan = _assemble("prim_pan", "frying_pan", [
+        ("body", trimesh.creation.annulus(r_min=0.09, r_max=0.1, height=0.04, sections=96)),
+        ("base", _placed(trimesh.creation.cylinder(radius=0.09, height=0.006, sections=96), offset=(0, 0, -0.017))),
+        ("handle", _placed(trimesh.creation.capsule(height=0.16, radius=0.01, count=[24, 24]), [0, 1, 0], np.pi / 2,
+                           (0.19, 0.0, 0.0))),
+    ])
+    return [mug, hammer, pan]
+
+
+def twin_meshes() -> list[LabelledMesh]:
+    """The twin's objects: `seggrasp.objects.load_asset_set()` once assets/manifest.json exists, else the files."""
+    from seggrasp.objects import load_asset_set, read_obj_arrays
+
+    if (ASSETS / "manifest.json").is_file():
+        return [LabelledMesh(m.object_id, m.category, m.mesh, m.labels) for m in load_asset_set() if m.labels]
+    found = []
+    for folder in sorted((ASSETS / "objects").glob("*/")):
+        if (folder / "mesh.obj").is_file() and (folder / "labels.json").is_file():
+            vertices, faces = read_obj_arrays(folder / "mesh.obj")[0]
+            found.append(LabelledMesh(folder.name, folder.name.split("_")[0],
+                                      trimesh.Trimesh(vertices, faces, process=False), read_labels(folder / "labels.json")))
+    return found
+
+
+def subdivided(item: LabelledMesh, n_faces: int) -> LabelledMesh:
+    """`item` split 1-to-4 until it has at least `n_faces` faces, then decimated to about `n_faces` (watertight
+    in, watertight out); labels follow the nearest face centroid of the subdivided mesh."""
+    import fast_simplification
+    from scipy.spatial import cKDTree
+
+    vertices, faces, labels = item.mesh.vertices, item.mesh.faces, item.labels.face_labels
+    while len(faces) < n_faces:
+        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
+        new_labels = np.empty(len(faces), dtype=np.int64)
+        for old, new in index.items():
+            new_labels[new] = labels[old]
+        labels = new_labels
+    fine = trimesh.Trimesh(vertices, faces, process=False)
+    small_v, small_f = fast_simplification.simplify(np.asarray(vertices, np.float32), np.asarray(faces, np.int32),
+                                                    target_reduction=1.0 - n_faces / len(faces))
+    mesh = trimesh.Trimesh(np.asarray(small_v, np.float64), np.asarray(small_f, np.int64), process=False)
+    _, nearest = cKDTree(fine.triangles_center).query(mesh.triangles_center)
+    return LabelledMesh(f"{item.name}_{len(mesh.faces) // 1000}k", item.category, mesh,
+                        PartLabels(item.labels.parts, labels[nearest]))
+
+
+# ----------------------------------------------------------------------------------------------- the stages
+
+
+def coarse_scores(item: LabelledMesh, preset: str, seed: int, n_views: int, image_size: int) -> tuple[np.ndarray, dict]:
+    """Render, detect (simulated) and vote; returns S and the stage times."""
+    times = {}
+    started = time.perf_counter()
+    views = render_views(item.mesh, camera_rig(n_views=n_views, seed=seed), image_size=image_size)
+    times["render"] = time.perf_counter() - started
+    started = time.perf_counter()
+    detections = SimulatedDetector(item.labels, preset=preset, seed=seed).detect(views, item.labels.parts)
+    times["detect"] = time.perf_counter() - started
+    started = time.perf_counter()
+    scores = vote(views, detections, len(item.mesh.faces), len(item.labels.parts))
+    times["vote"] = time.perf_counter() - started
+    return scores, times
+
+
+def _sweep_child(conn, mesh, config, cache_dir, workers) -> None:
+    stats = SweepStats()
+    started = time.perf_counter()
+    partitions = decompose_sweep(mesh, config, cache_dir=cache_dir, workers=workers, stats=stats)
+    elapsed = time.perf_counter() - started
+    peak_kb = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
+                  resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
+    conn.send(([(p.threshold, p.part_of_face) for p in partitions], stats, elapsed, peak_kb / 1024.0))
+    conn.close()
+
+
+def sweep_in_child(mesh, config, cache_dir, workers):
+    """decompose_sweep in a forked child: (partitions, stats, seconds, peak RSS in MB)."""
+    from seggrasp.decompose import Partition
+
+    context = multiprocessing.get_context("fork")
+    receive, send = context.Pipe(duplex=False)
+    child = context.Process(target=_sweep_child, args=(send, mesh, config, cache_dir, workers))
+    child.start()
+    send.close()
+    result = receive.recv()
+    child.join()
+    if child.exitcode != 0:
+        raise RuntimeError(f"decomposition child failed with exit code {child.exitcode}")
+    partitions, stats, elapsed, peak_mb = result
+    return [Partition(t, p) for t, p in partitions], stats, elapsed, peak_mb
+
+
+def evaluate_modes(item: LabelledMesh, scores: np.ndarray, partitions, normalisation: str) -> dict:
+    """mIoU (area-weighted and face-count) of every refinement mode, plus fusion time of "full"."""
+    areas = item.mesh.area_faces
+    gt = item.labels.face_labels
+    n_parts = len(item.labels.parts)
+    result = {}
+    for mode in REFINE_MODES:
+        started = time.perf_counter()
+        labels = labels_from_scores(refine_scores(scores, partitions, areas, mode, normalisation))
+        elapsed = time.perf_counter() - started
+        result[mode] = {"miou": shape_miou(labels, gt, n_parts, areas), "miou_faces": shape_miou(labels, gt, n_parts),
+                        "seconds": elapsed}
+    return result
+
+
+# ------------------------------------------------------------------------------------------------------ runs
+
+
+def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict]:
+    records = []
+    scores, coarse_times = coarse_scores(item, args.preset, args.seed, args.views, args.image_size)
+    for mode in modes:
+        if (item.name, mode) in done:
+            continue
+        config = DecompositionConfig(mode=mode, seed=args.seed)
+        with tempfile.TemporaryDirectory(prefix="seggrasp-bench-") as cache:
+            partitions, stats, decompose_s, peak_mb = sweep_in_child(item.mesh, config, cache, args.workers)
+            warm = None
+            if args.warm:
+                started = time.perf_counter()
+                warm_scores, warm_times = coarse_scores(item, args.preset, args.seed, args.views, args.image_size)
+                warm_stats = SweepStats()
+                sweep_started = time.perf_counter()
+                warm_partitions = decompose_sweep(item.mesh, config, cache_dir=cache, stats=warm_stats)
+                warm_times["decompose"] = time.perf_counter() - sweep_started
+                fusion_started = time.perf_counter()
+                labels_from_scores(refine_scores(warm_scores, warm_partitions, item.mesh.area_faces, "full"))
+                warm_times["fusion"] = time.perf_counter() - fusion_started
+                warm_times["total_without_detector"] = time.perf_counter() - started - warm_times["detect"]
+                warm = {"times": warm_times, "coacd_runs": len(warm_stats.run_seconds)}
+        quality = evaluate_modes(item, scores, partitions, args.normalisation)
+        times = dict(coarse_times, decompose=decompose_s, fusion=quality["full"]["seconds"])
+        times["total_without_detector"] = sum(v for k, v in times.items() if k != "detect")
+        records.append({
+            "mesh": item.name, "category": item.category, "faces": int(len(item.mesh.faces)), "mode": mode,
+            "preset": args.preset, "seed": args.seed, "times": times, "peak_rss_mb": peak_mb,
+            "coacd_seconds": {f"{t:.2f}": s for t, s in sorted(stats.run_seconds.items())},
+            "thresholds_run": sorted(stats.evaluated), "distinct_partitions": [p.threshold for p in partitions],
+            "parts_per_partition": [p.n_parts for p in partitions],
+            "miou": {m: q["miou"] for m, q in quality.items()},
+            "miou_faces": {m: q["miou_faces"] for m, q in quality.items()}, "warm": warm,
+        })
+    return records
+
+
+def print_table(records: list[dict], modes: list[str]) -> None:
+    print(f"\n{'mesh':24s} {'faces':>6s} {'mode':9s} {'render':>7s} {'vote':>6s} {'decomp':>8s} {'fusion':>7s} "
+          f"{'total':>8s} {'peakMB':>7s} {'runs':>4s} {'parts':>5s} {'coarse':>7s} {'full':>6s} {'multi':>6s} "
+          f"{'opt':>6s} {'spread':>6s} {'warm':>6s}")
+    for r in records:
+        t, m = r["times"], r["miou"]
+        warm = f"{r['warm']['times']['total_without_detector']:6.2f}" if r.get("warm") else "     -"
+        print(f"{r['mesh']:24s} {r['faces']:6d} {r['mode']:9s} {t['render']:7.2f} {t['vote']:6.2f} "
+              f"{t['decompose']:8.1f} {t['fusion']:7.3f} {t['total_without_detector']:8.1f} {r['peak_rss_mb']:7.0f} "
+              f"{len(r['coacd_seconds']):4d} {len(r['distinct_partitions']):5d} {m['none']:7.3f} {m['full']:6.3f} "
+              f"{m['multi']:6.3f} {m['opt']:6.3f} {m['spread']:6.3f} {warm}")
+    by_mode = {mode: [r for r in records if r["mode"] == mode] for mode in modes}
+    print()
+    for mode, rows in by_mode.items():
+        if not rows:
+            continue
+        summary = mean_over_categories([(r["category"], r["miou"]["full"]) for r in rows])
+        print(f"{mode:9s}: {len(rows)} meshes, decomposition {sum(r['times']['decompose'] for r in rows):8.1f} s, "
+              f"total {sum(r['times']['total_without_detector'] for r in rows):8.1f} s, "
+              f"mean mIoU coarse {np.mean([r['miou']['none'] for r in rows]):.3f} "
+              f"full {np.mean([r['miou']['full'] for r in rows]):.3f} (category mean {summary['overall']:.3f})")
+    if len(modes) == 2 and all(by_mode.values()):
+        common = sorted({r["mesh"] for r in by_mode[modes[0]]} & {r["mesh"] for r in by_mode[modes[1]]})
+        fast = {r["mesh"]: r for r in by_mode[modes[0]] if r["mesh"] in common}
+        ref = {r["mesh"]: r for r in by_mode[modes[1]] if r["mesh"] in common}
+        for name in common:
+            print(f"  {name:24s} speed-up decomposition {ref[name]['times']['decompose'] / fast[name]['times']['decompose']:6.1f}x"
+                  f"  total {ref[name]['times']['total_without_detector'] / fast[name]['times']['total_without_detector']:6.1f}x"
+                  f"  mIoU full {fast[name]['miou']['full']:.3f} vs {ref[name]['miou']['full']:.3f}")
+        dec = sum(ref[n]["times"]["decompose"] for n in common) / sum(fast[n]["times"]["decompose"] for n in common)
+        tot = sum(ref[n]["times"]["total_without_detector"] for n in common) / sum(
+            fast[n]["times"]["total_without_detector"] for n in common)
+        gap = np.mean([fast[n]["miou"]["full"] for n in common]) - np.mean([ref[n]["miou"]["full"] for n in common])
+        print(f"TOTAL over {len(common)} meshes: speed-up decomposition {dec:.1f}x, whole segmentation {tot:.1f}x "
+              f"(detector excluded); mean mIoU(full) {modes[0]} - {modes[1]} = {100 * gap:+.2f} points")
+
+
+def normalisation_study(items: list[LabelledMesh], args) -> None:
+    """mIoU of every refinement mode under every S_rev normalisation, on the (cached) default-mode sweeps."""
+    rows = {n: {m: [] for m in REFINE_MODES} for n in NORMALISATIONS}
+    for item in items:
+        scores, _ = coarse_scores(item, args.preset, args.seed, args.views, args.image_size)
+        partitions = decompose_sweep(item.mesh, DecompositionConfig(seed=args.seed), workers=args.workers)
+        for normalisation in NORMALISATIONS:
+            quality = evaluate_modes(item, scores, partitions, normalisation)
+            for mode in REFINE_MODES:
+                rows[normalisation][mode].append(quality[mode]["miou"])
+        print(f"{item.name:24s} " + "  ".join(
+            f"{n}: multi {rows[n]['multi'][-1]:.3f} full {rows[n]['full'][-1]:.3f}" for n in NORMALISATIONS)
+            + f"  (coarse {rows[NORMALISATIONS[0]]['none'][-1]:.3f})")
+    print(f"\nmean over {len(items)} meshes (preset {args.preset}, seed {args.seed}):")
+    for normalisation in NORMALISATIONS:
+        print(f"  {normalisation:15s} " + " ".join(f"{m} {np.mean(rows[normalisation][m]):.3f}" for m in REFINE_MODES))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--compare", choices=["reference"], help="also run the paper's literal sweep")
+    parser.add_argument("--normalisations", action="store_true", help="compare GeoFusion S_rev normalisations")
+    parser.add_argument("--meshes", default="twin,primitives",
+                        help="comma list of: twin, primitives, big (a twin object subdivided to >= 30k faces), "
+                             "or mesh names")
+    parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--views", type=int, default=10)
+    parser.add_argument("--image-size", type=int, default=512)
+    parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--normalisation", default=None, choices=NORMALISATIONS)
+    parser.add_argument("--no-warm", dest="warm", action="store_false", help="skip the warm-cache run")
+    parser.add_argument("--out", type=Path, default=default_cache_dir().parent / "bench" / "bench_seg.jsonl")
+    parser.add_argument("--resume", action="store_true", help="skip (mesh, mode) pairs already in --out")
+    parser.add_argument("--run-only", choices=["fast", "reference"],
+                        help="run only this mode now (the table also shows the other mode's records with --resume)")
+    args = parser.parse_args(argv)
+    if args.normalisation is None:
+        from seggrasp.fusion import SHIPPED_NORMALISATION
+
+        args.normalisation = SHIPPED_NORMALISATION
+
+    wanted = [w.strip() for w in args.meshes.split(",") if w.strip()]
+    items: list[LabelledMesh] = []
+    twin = twin_meshes() if ({"twin", "big"} & set(wanted)) or any("_" in w for w in wanted) else []
+    if "twin" in wanted:
+        items += twin
+    if "primitives" in wanted:
+        items += primitive_meshes()
+    if "big" in wanted:
+        if not twin:
+            parser.error("--meshes big needs the twin's objects")
+        items.append(subdivided(next((t for t in twin if t.category == "mug"), twin[0]), 30000))
+    named = [w for w in wanted if w not in ("twin", "primitives", "big")]
+    pool = {i.name: i for i in twin + primitive_meshes()}
+    for name in named:
+        if name not in pool:
+            parser.error(f"unknown mesh {name!r}; known: {sorted(pool)}")
+        items.append(pool[name])
+    if not items:
+        parser.error("no meshes selected")
+
+    if args.normalisations:
+        normalisation_study(items, args)
+        return 0
+
+    modes = ["fast"] + ([args.compare] if args.compare else [])
+    records = []
+    if args.resume and args.out.is_file():
+        records = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
+        records = [r for r in records if r["mesh"] in {i.name for i in items} and r["mode"] in modes]
+    done = {(r["mesh"], r["mode"]) for r in records}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    to_run = [args.run_only] if args.run_only else modes
+    for item in items:
+        for record in run_mesh(item, to_run, args, done):
+            records.append(record)
+            with args.out.open("a") as handle:  # one complete line per record; a resumed run skips it
+                handle.write(json.dumps(record) + "\n")
+            print(f"{record['mesh']} [{record['mode']}]: decomposition {record['times']['decompose']:.1f} s, "
+                  f"mIoU coarse {record['miou']['none']:.3f} full {record['miou']['full']:.3f}", flush=True)
+    print_table(records, modes)
+    print(f"\nrecords: {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,147 @@
+"""GeoFusion and GeoSpreading: refine the coarse face x prompt scores with a sweep of convex decompositions.
+
+Notation (paper section III-B). `S` (F x P) is the coarse score matrix of eq. 1 (one row per face), `a_i` the area
+of face i, and P(k, th_w) the k-th convex part of the decomposition at threshold th_w, with l = |P(k, th_w)| faces.
+
+Multi-fusion:      S_hat_i = S_i + sum_w sum_k S_rev(k, th_w) [i in P(k, th_w)]
+                   where the literal reading of the paper's area-weighted part score is
+                   S_rev(k, th_w) = 1/l * (sum_{i in P(k)} a_i S_i) / (sum_{i in P(k)} a_i).
+Fine-grained opt.: on the finest decomposition every part takes one label, the prompt with the largest
+                   area-weighted score sum_{i in P(k, th_min)} a_i S_hat_i over the part.
+Labels:            R_i = argmax_j S_hat_ij (`seggrasp.vote.labels_from_scores`, -1 for all-zero rows).
+
+`refine_scores` returns scores whose row argmax is the refined label: for the fine-grained optimisation every face
+gets the area-weighted mean S_hat of its finest part, so all faces of a part share one argmax.
+
+Modes (the paper's Table III ablation plus Fig. 6): "none" = coarse S; "multi" = S_hat only; "opt" = fine-grained
+optimisation of S; "full" = fine-grained optimisation of S_hat (GeoFusion); "spread" = GeoSpreading.
+
+GeoSpreading (eq. 5, as read here): instead of fusing scores, the coarse *labels* R0 = argmax S are spread over
+the parts: every part of every decomposition votes with the area fractions of the coarse labels inside it, and a
+face sums the votes of the parts that contain it, S_spread_i = sum_w h(k(i, th_w)), h_j(k) = (sum_{i in P(k),
+R0_i = j} a_i) / (sum_{i in P(k)} a_i). Faces with an unknown coarse label take part through their parts only.
+
+Normalisation of S_rev (`normalisation`, measured with bench/bench_seg.py --normalisations on the labelled
+primitive meshes and the twin, SimulatedDetector preset "typical", 10 views, seed 0):
+- "literal": the formula above. Its 1/l factor makes the fusion term tiny next to S on any mesh with more than a
+  handful of faces per part, so "multi" equals "none" and the fine-grained optimisation carries all of the gain.
+- "area_mean": S_rev without 1/l (the part's area-weighted mean score). Summed over W decompositions it outweighs
+  S W-fold and the coarse decompositions (one or two parts) pull every face to the object's majority label.
+- "partition_mean" (shipped): the area-weighted mean divided by the number of decompositions W, i.e. S_hat = S +
+  mean_w S_rev, so S and the geometric evidence have equal weight whatever the length of the sweep. This is the
+  reading that makes multi-fusion alone a gain, as the paper reports. Measured numbers: see SHIPPED_NORMALISATION.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from seggrasp.decompose import Partition
+
+REFINE_MODES = ("none", "multi", "opt", "full", "spread")
+NORMALISATIONS = ("literal", "area_mean", "partition_mean")
+#: mIoU (area-weighted, mean over shapes) of mode "multi" / "full" per normalisation, from
+#: `python bench/bench_seg.py --normalisations` (see the module docstring for the setting).
+SHIPPED_NORMALISATION = "partition_mean"
+
+
+def _check_inputs(scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray) -> None:
+    if scores.ndim != 2:
+        raise ValueError(f"scores must be an (F, P) matrix, got shape {scores.shape}")
+    if face_areas.shape != (scores.shape[0],):
+        raise ValueError(f"face_areas has shape {face_areas.shape}, expected ({scores.shape[0]},)")
+    if (face_areas < 0).any() or not np.isfinite(face_areas).all():
+        raise ValueError("face_areas must be finite and non-negative")
+    for partition in partitions:
+        if partition.part_of_face.shape != (scores.shape[0],):
+            raise ValueError(
+                f"partition at threshold {partition.threshold} has {partition.part_of_face.size} faces, "
+                f"scores have {scores.shape[0]}"
+            )
+
+
+def part_mean_scores(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndarray) -> np.ndarray:
+    """(K, P) area-weighted mean score of every part (zero for a part of zero area)."""
+    n_parts = int(part_of_face.max()) + 1
+    weighted = np.zeros((n_parts, scores.shape[1]))
+    np.add.at(weighted, part_of_face, scores * face_areas[:, None])
+    area = np.bincount(part_of_face, weights=face_areas, minlength=n_parts)
+    return np.divide(weighted, area[:, None], out=np.zeros_like(weighted), where=area[:, None] > 0)
+
+
+def part_scores(
+    scores: np.ndarray, partition: Partition, face_areas: np.ndarray, normalisation: str, n_partitions: int
+) -> np.ndarray:
+    """S_rev(k, th) for every part k of one decomposition, (K, P), under the given normalisation."""
+    means = part_mean_scores(scores, partition.part_of_face, face_areas)
+    if normalisation == "literal":
+        face_count = np.bincount(partition.part_of_face, minlength=len(means))
+        return means / np.maximum(face_count, 1)[:, None]
+    if normalisation == "area_mean":
+        return means
+    if normalisation == "partition_mean":
+        return means / n_partitions
+    raise ValueError(f"unknown normalisation {normalisation!r}; use one of {NORMALISATIONS}")
+
+
+def multi_fusion(
+    scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
+    normalisation: str = SHIPPED_NORMALISATION,
+) -> np.ndarray:
+    """S_hat = S + sum_w S_rev(k(i, th_w), th_w) for every face i."""
+    fused = scores.astype(np.float64).copy()
+    for partition in partitions:
+        fused += part_scores(scores, partition, face_areas, normalisation, len(partitions))[partition.part_of_face]
+    return fused
+
+
+def fine_grained(scores: np.ndarray, finest: Partition, face_areas: np.ndarray) -> np.ndarray:
+    """Every face takes the area-weighted mean score of its part in the finest decomposition (one label per part)."""
+    return part_mean_scores(scores, finest.part_of_face, face_areas)[finest.part_of_face]
+
+
+def geo_spreading(scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray) -> np.ndarray:
+    """GeoSpreading: sum over decompositions of the area fractions of the coarse labels in each face's part."""
+    n_prompts = scores.shape[1]
+    coarse = np.where(scores.max(axis=1) > 0, scores.argmax(axis=1), -1)
+    one_hot = np.zeros_like(scores, dtype=np.float64)
+    known = coarse >= 0
+    one_hot[np.flatnonzero(known), coarse[known]] = 1.0
+    spread = np.zeros((scores.shape[0], n_prompts))
+    for partition in partitions:
+        spread += part_mean_scores(one_hot, partition.part_of_face, face_areas)[partition.part_of_face]
+    return spread
+
+
+def refine_scores(
+    scores: np.ndarray,
+    partitions: Sequence[Partition],
+    face_areas: np.ndarray,
+    mode: str = "full",
+    normalisation: str = SHIPPED_NORMALISATION,
+) -> np.ndarray:
+    """Refined (F, P) scores; labels follow from `seggrasp.vote.labels_from_scores`.
+
+    `partitions` are the distinct decompositions, finest first (as `decompose_sweep` returns them).
+    """
+    if mode not in REFINE_MODES:
+        raise ValueError(f"unknown refinement mode {mode!r}; use one of {REFINE_MODES}")
+    if normalisation not in NORMALISATIONS:
+        raise ValueError(f"unknown normalisation {normalisation!r}; use one of {NORMALISATIONS}")
+    scores = np.asarray(scores, dtype=np.float64)
+    face_areas = np.asarray(face_areas, dtype=np.float64)
+    _check_inputs(scores, partitions, face_areas)
+    if mode == "none":
+        return scores.copy()
+    if not partitions:
+        raise ValueError(f"refinement mode {mode!r} needs at least one decomposition")
+    finest = min(partitions, key=lambda p: p.threshold)
+    if mode == "multi":
+        return multi_fusion(scores, partitions, face_areas, normalisation)
+    if mode == "opt":
+        return fine_grained(scores, finest, face_areas)
+    if mode == "full":
+        return fine_grained(multi_fusion(scores, partitions, face_areas, normalisation), finest, face_areas)
+    return geo_spreading(scores, partitions, face_areas)
