@@ -135,6 +135,13 @@ class Checkerboard:
     rows: int
     square: float
 
+    def __post_init__(self) -> None:
+        if self.columns < 3 or self.rows < 3 or self.square <= 0:
+            raise ValueError(f"checkerboard needs >= 3x3 inner corners and a positive square size, got {self}")
+        if (self.columns + self.rows) % 2 == 0:
+            raise ValueError(f"checkerboard {self.columns}x{self.rows} inner corners looks the same turned by 180 "
+                             "degrees, so its pose is ambiguous; use one even and one odd count (e.g. 7x6)")
+
     def object_points(self) -> np.ndarray:
         """Inner corners in the target frame (z = 0 plane, row-major as OpenCV returns them)."""
         grid = np.mgrid[0:self.columns, 0:self.rows].T.reshape(-1, 2) * self.square

@@ -11,7 +11,7 @@ from hardware.cell import make_guard
 from hardware.config import load_config
 from hardware.errors import ConnectionLostError, GripperError, SafetyError
 from hardware.robotiq import RobotiqGripper
-from tests.fakes_hardware import EXAMPLE_CONFIG, FakeRobotiqServer
+from fakes_hardware import EXAMPLE_CONFIG, FakeRobotiqServer
 
 
 @pytest.fixture(scope="module")
