@@ -227,12 +227,19 @@ class GraspPrimitive:
         T_pre[:3, 3] -= s.pregrasp_distance * T_world_base[:3, 2]
         T_lift = T_world_base.copy()
         T_lift[2, 3] += s.lift_height
-        paths, reason = self.robot.plan([T_pre, T_world_base, T_lift])
-        if paths is None:
+        candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
+        if not candidates:
             return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=f"unreachable: {reason}")
-
-        reason = self._check_table_clearance(self.robot.free_space_path(paths[0][0]) + paths[1] + paths[2], opening)
-        if reason:
+        paths, start = None, self.robot.configuration()
+        for candidate in candidates:  # IK branches, nearest home first
+            for transit in self.robot.free_space_paths(start, candidate[0][0]):
+                reason = self._check_table_clearance(transit + candidate[1] + candidate[2], opening)
+                if not reason:
+                    paths = candidate
+                    break
+            if paths is not None:
+                break
+        if paths is None:
             return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=reason)
         self.robot.place(paths[0][0])
         self.gripper.set_width(opening)
@@ -268,12 +275,14 @@ class GraspPrimitive:
         """'' if no configuration brings the robot within `table_clearance` of the table, else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()
+        links = set(links)
         self.gripper.set_width(opening)
         for index, config in enumerate(configs):
             self.robot.place(config)
-            for link in links:
-                if client.getClosestPoints(body, self.world.table_id, self.settings.table_clearance, linkIndexA=link):
-                    return f"robot would touch the table (waypoint {index} of {len(configs)}, link {link})"
+            for point in client.getClosestPoints(body, self.world.table_id, self.settings.table_clearance):
+                if point[3] in links:
+                    name = client.getJointInfo(body, point[3])[12].decode() if point[3] >= 0 else "base"
+                    return f"robot would touch the table ({name} at waypoint {index + 1} of {len(configs)})"
         return ""
 
     def _penetrates_object(self) -> bool:

@@ -204,7 +204,8 @@ class Robotiq2F85:
 class FloatingGripper:
     """A 2F-85 with no arm: its base is dragged by a fixed constraint (as in VGN), for fast sweeps.
 
-    Exposes the same motion interface as the arm (`reset_home`, `plan`, `free_space_path`, `place`,
+    Exposes the same motion interface as the arm (`reset_home`, `configuration`, `plan`,
+    `free_space_paths`, `place`,
     `follow`, `hold`, `table_check_links`, `gripper`).
     """
 
@@ -239,17 +240,21 @@ class FloatingGripper:
         self._teleport(self.T_world_home)
         self.gripper.set_width(width)
 
-    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[np.ndarray]], str]:
-        """Paths through base poses (a floating gripper reaches every pose): the first pose alone, then straight
-        lines with waypoints every `PATH_RESOLUTION` m."""
+    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[list[np.ndarray]]], str]:
+        """One candidate (a floating gripper reaches every pose): the first pose alone, then straight lines with
+        waypoints every `PATH_RESOLUTION` m."""
         paths = [[np.asarray(poses[0], dtype=float)]]
         for index in range(1, len(poses)):
             paths.append(linear_poses(poses[index - 1], poses[index], PATH_RESOLUTION)[1:])
-        return paths, ""
+        return [paths], ""
 
-    def free_space_path(self, T_world_target: np.ndarray) -> list[np.ndarray]:
+    def configuration(self) -> np.ndarray:
+        """The commanded base pose."""
+        return self._commanded.copy()
+
+    def free_space_paths(self, T_world_start: np.ndarray, T_world_target: np.ndarray) -> list[list[np.ndarray]]:
         """Poses to check on the way to a free-space target: the floating gripper is placed there directly."""
-        return [T_world_target]
+        return [[T_world_target]]
 
     def place(self, T_world_base: np.ndarray) -> None:
         """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""

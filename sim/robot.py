@@ -3,15 +3,16 @@ joint-space motion with speed limits.
 
 Kinematics are the UR5's DH parameters (d1 0.089159, a2 -0.425, a3 -0.39225, d4 0.10915, d5 0.09465, d6 0.0823).
 The URDF's `base_link` is the DH base frame turned by pi about z (the ROS-Industrial convention); `tests/test_sim_robot.py`
-checks that PyBullet's forward kinematics of the URDF equals the DH chain. Inverse kinematics is PyBullet's damped
-least squares with null-space limits, refined from its own solution, and accepted only when the DH forward
-kinematics of the answer lands within `IK_POSITION_TOLERANCE` / `IK_ANGLE_TOLERANCE` of the target with every joint
-inside its limits.
+checks that PyBullet's forward kinematics of the URDF equals the DH chain. Inverse kinematics is the UR's closed
+form (up to 8 solutions: shoulder left/right, wrist up/down, elbow up/down), each shifted by 2 pi to lie nearest the
+current configuration; a solution is accepted only when its DH forward kinematics lands within
+`IK_POSITION_TOLERANCE` / `IK_ANGLE_TOLERANCE` of the target with every joint inside the planning limits. (PyBullet's
+damped-least-squares IK, tried first, missed reachable side grasps by 15-300 mm from the home seed and picked wrist
+branches that hit the table, with no way to ask for another branch.)
 """
 
 from __future__ import annotations
 
-import logging
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,9 +20,7 @@ import pybullet
 from scipy.spatial.transform import Rotation
 
 from sim.gripper import GripperSettings, Robotiq2F85
-from sim.world import PATH_RESOLUTION, World, linear_poses, pose_to_pb
-
-log = logging.getLogger(__name__)
+from sim.world import PATH_RESOLUTION, World, linear_poses
 
 ARM_JOINTS = (
     "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
@@ -43,6 +42,8 @@ HOME_Q = np.array([0.0, -1.9, 1.9, -1.571, -1.571, 0.0])
 #: Torque limits (N m): UR5 base/shoulder/elbow 150, wrists 28.
 JOINT_FORCES = np.array([150.0, 150.0, 150.0, 28.0, 28.0, 28.0])
 IK_POSITION_TOLERANCE = 0.005
+#: Weights of the joints when choosing the IK branch nearest a configuration (big joints move more mass).
+JOINT_WEIGHTS = np.array([2.0, 2.0, 1.5, 1.0, 1.0, 0.5])
 IK_ANGLE_TOLERANCE = np.deg2rad(3.0)
 #: The largest joint step allowed between neighbouring straight-line waypoints (rad).
 MAX_JOINT_JUMP = 0.25
@@ -85,20 +86,7 @@ class UR5Arm:
         links = {c.getJointInfo(self.body, j)[12].decode(): j for j in range(c.getNumJoints(self.body))}
         self.arm_joints = [joints[n] for n in ARM_JOINTS]
         self.gripper_base_link = links[GRIPPER_BASE_LINK]
-        self.movable = [j for j in range(c.getNumJoints(self.body)) if c.getJointInfo(self.body, j)[2] != pybullet.JOINT_FIXED]
         self.gripper = Robotiq2F85(world, self.body, self.gripper_base_link, gripper)
-        # Null-space arrays cover every movable joint (the gripper's too), as PyBullet requires.
-        lower, upper = [], []
-        for j in self.movable:
-            info = c.getJointInfo(self.body, j)
-            lower.append(info[8])
-            upper.append(info[9])
-        for k, j in enumerate(self.arm_joints):
-            index = self.movable.index(j)
-            lower[index], upper[index] = JOINT_LOWER[k], JOINT_UPPER[k]
-        self._ik_lower, self._ik_upper = lower, upper
-        self._ik_ranges = [u - lo for lo, u in zip(lower, upper)]
-        self._arm_slots = [self.movable.index(j) for j in self.arm_joints]
         self.q_commanded = HOME_Q.copy()
 
     # --- kinematics -----------------------------------------------------------------------------------------
@@ -107,67 +95,69 @@ class UR5Arm:
         """World -> gripper base for arm joints `q` (robot base at the world origin)."""
         return T_BASELINK_DHBASE @ dh_forward(np.asarray(q, dtype=float)) @ T_FLANGE_GRIPPER
 
-    def _pybullet_ik(self, T_world_target: np.ndarray, seed: np.ndarray) -> np.ndarray:
-        position, orientation = pose_to_pb(T_world_target)
-        current = [0.0] * len(self.movable)
-        rest = [0.0] * len(self.movable)
-        for k, slot in enumerate(self._arm_slots):
-            current[slot] = float(seed[k])
-            rest[slot] = float(HOME_Q[k])
-        solution = self.world.client.calculateInverseKinematics(
-            self.body, self.gripper_base_link, position, orientation,
-            lowerLimits=self._ik_lower, upperLimits=self._ik_upper, jointRanges=self._ik_ranges, restPoses=rest,
-            currentPositions=current, maxNumIterations=100, residualThreshold=1e-6,
-        )
-        return np.array([solution[slot] for slot in self._arm_slots])
-
-    def ik(self, T_world_target: np.ndarray, seed: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
-        """Joint angles that put the gripper base at `T_world_target`, or (None, reason) if unreachable."""
-        q = HOME_Q.copy() if seed is None else np.asarray(seed, dtype=float).copy()
-        best: tuple[float, np.ndarray] | None = None
-        for _ in range(8):
-            q = self._pybullet_ik(T_world_target, q)
+    def ik_solutions(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> list[np.ndarray]:
+        """Every IK branch that passes the reachability check, nearest to `near` (default: home) first."""
+        near = HOME_Q if near is None else np.asarray(near, dtype=float)
+        T_dh = np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)
+        solutions = []
+        for q in ur_analytic_ik(T_dh):
+            q = near + (q - near + np.pi) % (2 * np.pi) - np.pi  # the 2 pi turn nearest `near`
+            if np.any(q < JOINT_LOWER - 1e-9) or np.any(q > JOINT_UPPER + 1e-9):
+                continue
             position_error, angle_error = pose_error(self.fk(q), T_world_target)
-            score = position_error / IK_POSITION_TOLERANCE + angle_error / IK_ANGLE_TOLERANCE
-            if best is None or score < best[0]:
-                best = (score, q.copy())
-            if position_error < 0.2 * IK_POSITION_TOLERANCE and angle_error < 0.2 * IK_ANGLE_TOLERANCE:
-                break
-        q = best[1]
-        position_error, angle_error = pose_error(self.fk(q), T_world_target)
-        if position_error > IK_POSITION_TOLERANCE or angle_error > IK_ANGLE_TOLERANCE:
-            return None, f"IK misses the target by {position_error * 1000:.1f} mm / {np.rad2deg(angle_error):.1f} deg"
-        if np.any(q < JOINT_LOWER - 1e-6) or np.any(q > JOINT_UPPER + 1e-6):
-            return None, f"IK solution outside the joint limits: {np.round(q, 3).tolist()}"
-        return q, ""
+            if position_error <= IK_POSITION_TOLERANCE and angle_error <= IK_ANGLE_TOLERANCE:
+                solutions.append(q)
+        return sorted(solutions, key=lambda q: float(np.abs((q - near) * JOINT_WEIGHTS).sum()))
+
+    def ik(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+        """The reachable IK solution nearest to `near`, or (None, reason)."""
+        solutions = self.ik_solutions(T_world_target, near)
+        if solutions:
+            return solutions[0], ""
+        if not ur_analytic_ik(np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)):
+            return None, "pose outside the UR5's workspace (no IK solution)"
+        return None, "every IK solution violates the joint limits"
 
     # --- planning ---------------------------------------------------------------------------------------------
 
-    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[np.ndarray]] | None, str]:
-        """Joint paths through gripper-base poses: the first pose alone (reached through free space), then a
-        straight line to each next pose with waypoints every `PATH_RESOLUTION` m. None + reason if any waypoint
-        is unreachable or the arm would have to flip between neighbouring waypoints."""
-        q, reason = self.ik(poses[0], HOME_Q)
-        if q is None:
-            return None, f"pose 0: {reason}"
-        paths = [[q]]
-        for index in range(1, len(poses)):
-            segment = []
-            for T in linear_poses(poses[index - 1], poses[index], PATH_RESOLUTION)[1:]:
-                q_next, reason = self.ik(T, q)
-                if q_next is None:
-                    return None, f"pose {index}: {reason}"
-                if np.abs(q_next - q).max() > MAX_JOINT_JUMP:
-                    return None, f"pose {index}: the arm would flip ({np.abs(q_next - q).max():.2f} rad in one step)"
-                segment.append(q_next)
-                q = q_next
-            paths.append(segment)
-        return paths, ""
+    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[list[np.ndarray]]], str]:
+        """Candidate joint paths through gripper-base poses, one per IK branch of the first pose (nearest home
+        first): the first pose alone (reached through free space), then a straight line to each next pose with
+        waypoints every `PATH_RESOLUTION` m, each waypoint the solution nearest the previous one. A branch is
+        dropped when a waypoint is unreachable or the arm would have to flip between neighbours. Returns
+        ([], reason) when no branch works."""
+        candidates, reason = [], ""
+        for q_start in self.ik_solutions(poses[0]):
+            paths, q = [[q_start]], q_start
+            for index in range(1, len(poses)):
+                segment = []
+                for T in linear_poses(poses[index - 1], poses[index], PATH_RESOLUTION)[1:]:
+                    q_next, why = self.ik(T, q)
+                    if q_next is None or np.abs(q_next - q).max() > MAX_JOINT_JUMP:
+                        reason = f"pose {index}: " + (why or "the arm would flip between waypoints")
+                        break
+                    segment.append(q_next)
+                    q = q_next
+                else:
+                    paths.append(segment)
+                    continue
+                break
+            if len(paths) == len(poses):
+                candidates.append(paths)
+        if not candidates and not reason:
+            reason = "pose 0: " + self.ik(poses[0])[1]
+        return candidates, reason
 
-    def free_space_path(self, q_target: np.ndarray) -> list[np.ndarray]:
-        """Joint-space straight line from the commanded configuration to `q_target`, 0.05 rad apart."""
-        steps = max(1, int(np.ceil(np.abs(q_target - self.q_commanded).max() / 0.05)))
-        return [self.q_commanded + (q_target - self.q_commanded) * k / steps for k in range(1, steps + 1)]
+    def configuration(self) -> np.ndarray:
+        """The commanded joint angles."""
+        return self.q_commanded.copy()
+
+    def free_space_paths(self, q_start: np.ndarray, q_target: np.ndarray) -> list[list[np.ndarray]]:
+        """Candidate joint-space paths from `q_start` to `q_target` (waypoints <= 0.05 rad apart): straight, or
+        through a raised via point (target base and wrist angles, home shoulder and elbow)."""
+        via = q_target.copy()
+        via[1:3] = HOME_Q[1:3]
+        return [_joint_line(q_start, [q_target]), _joint_line(q_start, [via, q_target])]
 
     # --- motion -----------------------------------------------------------------------------------------------
 
@@ -219,3 +209,62 @@ class UR5Arm:
     def table_check_links(self) -> tuple[int, list[int]]:
         """Links that must stay clear of the table: everything from the upper arm on (base and shoulder sit on it)."""
         return self.body, [j for j in range(self.world.client.getNumJoints(self.body)) if j >= self.arm_joints[1]]
+
+
+def _joint_line(q_start: np.ndarray, targets: list[np.ndarray], step: float = 0.05) -> list[np.ndarray]:
+    """Joint-space straight lines through `targets`, waypoints at most `step` rad apart (start excluded)."""
+    path, q = [], q_start
+    for target in targets:
+        n = max(1, int(np.ceil(np.abs(target - q).max() / step)))
+        path += [q + (target - q) * k / n for k in range(1, n + 1)]
+        q = target
+    return path
+
+
+def _dh_link(theta: float, i: int) -> np.ndarray:
+    ct, st, ca, sa = np.cos(theta), np.sin(theta), np.cos(DH_ALPHA[i]), np.sin(DH_ALPHA[i])
+    return np.array([[ct, -st * ca, st * sa, DH_A[i] * ct], [st, ct * ca, -ct * sa, DH_A[i] * st], [0, sa, ca, DH_D[i]], [0, 0, 0, 1]])
+
+
+def ur_analytic_ik(T_dh: np.ndarray) -> list[np.ndarray]:
+    """Closed-form UR5 IK: all joint solutions (angles in (-pi, pi]) whose DH flange pose is `T_dh` (DH base frame).
+
+    Shoulder pan from the wrist centre's distance to the base axis, wrist 2 from the flange height along the pan
+    plane, wrist 3 from the flange axes, then a planar 2-link problem for shoulder lift and elbow, and wrist 1 as the
+    remainder. Singular wrist (sin(theta5) ~ 0) takes theta6 = 0.
+    """
+    d4, d6, a2, a3 = DH_D[3], DH_D[5], DH_A[1], DH_A[2]
+    solutions: list[np.ndarray] = []
+    wrist_centre = T_dh @ np.array([0.0, 0.0, -d6, 1.0])
+    radius = float(np.hypot(wrist_centre[0], wrist_centre[1]))
+    if radius < abs(d4):
+        return solutions
+    psi = np.arctan2(wrist_centre[1], wrist_centre[0])
+    phi = np.arccos(d4 / radius)
+    T_inv = np.linalg.inv(T_dh)
+    for t1 in (psi + phi + np.pi / 2, psi - phi + np.pi / 2):
+        c5 = (T_dh[0, 3] * np.sin(t1) - T_dh[1, 3] * np.cos(t1) - d4) / d6
+        if abs(c5) > 1 + 1e-9:
+            continue
+        for t5 in (np.arccos(np.clip(c5, -1, 1)), -np.arccos(np.clip(c5, -1, 1))):
+            s5 = np.sin(t5)
+            if abs(s5) < 1e-9:
+                t6 = 0.0
+            else:
+                t6 = np.arctan2(
+                    (-T_inv[1, 0] * np.sin(t1) + T_inv[1, 1] * np.cos(t1)) / s5,
+                    (T_inv[0, 0] * np.sin(t1) - T_inv[0, 1] * np.cos(t1)) / s5,
+                )
+            T14 = np.linalg.inv(_dh_link(t1, 0)) @ T_dh @ np.linalg.inv(_dh_link(t5, 4) @ _dh_link(t6, 5))
+            p13 = (T14 @ np.array([0.0, -d4, 0.0, 1.0]))[:3]
+            n13 = float(np.linalg.norm(p13))
+            c3 = (n13**2 - a2**2 - a3**2) / (2 * a2 * a3)
+            if abs(c3) > 1 + 1e-9:
+                continue
+            for t3 in (np.arccos(np.clip(c3, -1, 1)), -np.arccos(np.clip(c3, -1, 1))):
+                t2 = -np.arctan2(p13[1], -p13[0]) + np.arcsin(np.clip(a3 * np.sin(t3) / n13, -1, 1))
+                T34 = np.linalg.inv(_dh_link(t2, 1) @ _dh_link(t3, 2)) @ T14
+                t4 = np.arctan2(T34[1, 0], T34[0, 0])
+                q = np.array([t1, t2, t3, t4, t5, t6])
+                solutions.append((q + np.pi) % (2 * np.pi) - np.pi)
+    return solutions
