@@ -48,7 +48,7 @@ class GraspSettings:
     hold_time: float = 1.0
     lift_success: float = 0.18
     table_clearance: float = 0.003
-    settle_time: float = 0.5
+    settle_time: float = 1.0  # at most; settling stops once the object rests
 
 
 @dataclass(frozen=True)
@@ -144,7 +144,7 @@ class SimCell:
         self.robot.reset_home(MAX_WIDTH)
         self.current_object = model
         self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
-        self.world.step(int(round(self.grasp_settings.settle_time / self.world.physics.time_step)))
+        self._settle()
         self._start_T_world_obj = self.world.body_pose(self.object_body)
         self._camera_rng = np.random.default_rng([self._seed, 1])
 
@@ -157,6 +157,18 @@ class SimCell:
         lowest = float((model.mesh.vertices @ T[:3, :3].T)[:, 2].min())
         T[:3, 3] = [xy[0], xy[1], TABLE_TOP_Z - lowest + 0.001]
         return T
+
+    def _settle(self) -> None:
+        """Step until the object rests (speed < 5 mm/s and 0.05 rad/s for 0.1 s) or `settle_time` runs out."""
+        dt = self.world.physics.time_step
+        quiet, needed = 0, int(round(0.1 / dt))
+        for _ in range(int(round(self.grasp_settings.settle_time / dt))):
+            self.world.step()
+            linear, angular = self.world.client.getBaseVelocity(self.object_body)
+            quiet = quiet + 1 if np.linalg.norm(linear) < 0.005 and np.linalg.norm(angular) < 0.05 else 0
+            if quiet >= needed:
+                return
+        log.debug("object %s still moving after %.2f s", self.current_object.object_id, self.grasp_settings.settle_time)
 
     def capture(self) -> list[Frame]:
         return [camera.capture(self.world.client, self._camera_rng) for camera in self.cameras]
@@ -233,7 +245,7 @@ class GraspPrimitive:
         paths, start = None, self.robot.configuration()
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
-                reason = self._check_table_clearance(transit + candidate[1] + candidate[2], opening)
+                reason = self.table_clearance_violation(transit + candidate[1] + candidate[2], opening)
                 if not reason:
                     paths = candidate
                     break
@@ -271,7 +283,7 @@ class GraspPrimitive:
             touched_faces=faces, contact_force=float(np.mean(forces)), message=message,
         )
 
-    def _check_table_clearance(self, configs: list, opening: float) -> str:
+    def table_clearance_violation(self, configs: list, opening: float) -> str:
         """'' if no configuration brings the robot within `table_clearance` of the table, else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()

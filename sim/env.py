@@ -112,7 +112,7 @@ class SegGraspEnv(gym.Env):
                 raise ValueError("include_mesh needs the twin's ground truth; the real cell cannot provide it")
             from hardware import RealCell
 
-            self.cell = RealCell.from_config(config, dry_run=dry_run)
+            self.cell = RealCell.from_config(config, dry_run=dry_run, **cell_kwargs)
             frames = self.cell.capture()
         else:
             raise ValueError(f"unknown backend {backend!r}; use 'sim' or 'real'")

@@ -27,6 +27,7 @@ import os
 import sys
 import time
 import traceback
+import zlib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -221,12 +222,14 @@ def _evaluate_object(task: ObjectTask) -> int:
             if record["executed"] and not record["reused_outcome"]:
                 outcomes[grasp_key(np.array(record["T_world_grasp"]), record["width"])] = _outcome_from(record)
 
-    model = load_asset(task.object_id)
-    scene_seed = config.seed
-    context = EpisodeContext.from_object(model, scene_seed, prompts=config.prompts or None)
+    scene_seed = scene_seed_of(task.object_id, config.seed)
+    if config.backend == "real":
+        context = EpisodeContext(task.object_id, "real", list(config.prompts), scene_seed)
+    else:
+        context = EpisodeContext.from_object(load_asset(task.object_id), scene_seed, prompts=config.prompts or None)
     cell = _get_cell(config)
     cell.reset(seed=scene_seed, object_id=task.object_id)
-    observation = observe(cell, perceive=config.perceive)
+    observation = observe(cell, perceive=config.perceive, workspace=_workspace(cell) if config.perceive else None)
     gt_on_mesh = _gt_on_observation(cell, context, observation)
 
     cache = out / "cache" / task.object_id
@@ -234,7 +237,7 @@ def _evaluate_object(task: ObjectTask) -> int:
     coarse = np.load(coarse_path)["scores"] if coarse_path.exists() else None
     segmenter = ObjectSegmenter(
         observation.mesh, context.prompts, config.detector_spec(), gt_on_mesh, seed=config.seed,
-        decomposition_cache=str(out / "cache" / "decompositions"), coarse_scores=coarse,
+        coarse_scores=coarse,
     )
     grasps = None
     n_new = 0
@@ -260,6 +263,22 @@ def _evaluate_object(task: ObjectTask) -> int:
     if gt_on_mesh is not None and not curve_done and any(m != "oracle" for m in config.methods):
         curve_file.append(_threshold_curve(context, segmenter, gt_on_mesh))
     return n_new
+
+
+def scene_seed_of(object_id: str, seed: int) -> int:
+    """The scene (object pose) seed of an object: fixed for a run seed, different between objects."""
+    return int(seed) * 100_003 + zlib.crc32(object_id.encode("utf-8")) % 100_000
+
+
+def _workspace(cell):
+    """Where the cameras look for the object: the real cell's configured box, or the twin's table area."""
+    if getattr(cell, "workspace", None) is not None:
+        return cell.workspace
+    from seggrasp.perception import Workspace
+    from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER
+
+    x, y = (float(v) for v in WORKSPACE_CENTER)
+    return Workspace((x - 0.25, y - 0.25, TABLE_TOP_Z - 0.02), (x + 0.25, y + 0.25, TABLE_TOP_Z + 0.45), TABLE_TOP_Z)
 
 
 def _outcome_from(record: dict) -> GraspOutcome:

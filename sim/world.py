@@ -80,6 +80,7 @@ class World:
         self.client = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
         self.table_id = -1
         self.pre_step_hooks: list[Callable[[], None]] = []
+        self.step_count = 0
         self.reset()
 
     @property
@@ -154,6 +155,7 @@ class World:
             for hook in self.pre_step_hooks:
                 hook()
             self.client.stepSimulation()
+        self.step_count += n
 
     def close(self) -> None:
         """Disconnect the client (idempotent)."""

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from seggrasp.cell import Cell
-from sim.cell import SimCell
+from sim.cell import GraspPrimitive, SimCell
+from sim.robot import HOME_Q
 from sim.primitives import primitive_object
 
 IMAGE = (160, 120)
@@ -120,3 +121,12 @@ def test_bad_grasp_input_raises_value_error(cell):
         cell.execute(np.eye(4), -0.01)
     with pytest.raises(ValueError, match="object_id"):
         cell.reset(seed=0, object_id="no-such-object")
+
+
+def test_arm_configuration_through_the_table_is_refused(box):
+    with SimCell([box], embodiment="arm", seed=0, image_size=IMAGE) as cell:
+        primitive = GraspPrimitive(cell.world, cell.robot, cell.object_body, cell.current_object, cell.grasp_settings)
+        assert primitive.table_clearance_violation([HOME_Q], 0.05) == ""
+        elbow_down = np.array([0.0, -0.3, 2.2, -1.571, -1.571, 0.0])  # forearm folded down into the table
+        reason = primitive.table_clearance_violation([HOME_Q, elbow_down], 0.05)
+        assert "table" in reason and "waypoint 2" in reason
