@@ -1,0 +1,216 @@
+"""`RealCell` end to end on fakes: fake RTDE pair, fake URCap socket server, fake RealSense pipelines."""
+
+from __future__ import annotations
+
+import functools
+import logging
+
+import numpy as np
+import pytest
+
+from fakes_hardware import (EXAMPLE_CONFIG, FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, box_on_table,
+                            cell_config_for_fakes, synthetic_frames)
+from hardware import ConnectionLostError, RealCell
+from hardware.config import load_config
+from hardware.ur import matrix_from_ur_pose
+from seggrasp.cell import Cell
+
+BOX_XY, BOX_SIZE = (-0.52, -0.1), (0.06, 0.05, 0.10)
+K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
+
+
+@functools.lru_cache(maxsize=None)
+def recorded_frames(serial: str) -> list:
+    """Ray-cast frames of the box on the table seen by the example config's camera `serial` (computed once)."""
+    camera = next(c for c in load_config(EXAMPLE_CONFIG).cameras if c.serial == serial)
+    return synthetic_frames(box_on_table(BOX_XY, BOX_SIZE), [camera.T_world_cam], K, (120, 160),
+                            names=[camera.name])
+
+
+def top_down(xyz) -> np.ndarray:
+    """Gripper pointing down at `xyz`, closing along world x."""
+    T = np.diag([1.0, -1.0, -1.0, 1.0])
+    T[:3, 3] = xyz
+    return T
+
+
+class Rig:
+    """A RealCell wired to fakes, with handles on every fake."""
+
+    def __init__(self, tmp_path, object_register: int | None = 150, dry_run: bool = False) -> None:
+        # replies end with a newline here (faster); tests/test_hardware_gripper.py covers bare replies too
+        self.server = FakeRobotiqServer(object_register=object_register, newline=True)
+        path = cell_config_for_fakes(tmp_path / "cell.yaml", self.server.port)
+        self.config = load_config(path)
+        self.ur = FakeUR(self.config.robot.model, self.config.robot.home_joints + 0.1)
+        self.frames = {camera.serial: recorded_frames(camera.serial) for camera in self.config.cameras}
+        self.pipelines: dict[str, FakePipeline] = {}
+        self.cell = RealCell.from_config(path, dry_run=dry_run, control_factory=self.ur.control,
+                                         receive_factory=self.ur.receive, pipeline_factory=self.pipeline,
+                                         align_factory=FakeAlign, camera_warmup_frames=1)
+
+    def pipeline(self, serial: str) -> FakePipeline:
+        self.pipelines[serial] = FakePipeline(self.frames[serial])
+        return self.pipelines[serial]
+
+    def heights(self) -> list[float]:
+        return [round(float(matrix_from_ur_pose(args[0])[2, 3]), 4) for name, args in self.ur.motions
+                if name == "moveL"]
+
+    def close(self) -> None:
+        self.cell.close()
+        self.server.stop()
+
+
+@pytest.fixture
+def rig(tmp_path):
+    rig = Rig(tmp_path)
+    yield rig
+    rig.close()
+
+
+def test_from_config_connects_everything(rig):
+    assert isinstance(rig.cell, Cell)
+    assert rig.ur.commands[0][0] == "setTcp"
+    assert rig.server.vars["STA"] == 3  # activated
+    assert all(p.started for p in rig.pipelines.values()) and len(rig.pipelines) == 2
+
+
+def test_reset_opens_goes_home_and_prompts(rig, caplog):
+    with caplog.at_level(logging.WARNING, logger="hardware.cell"):
+        rig.cell.reset(seed=3, object_id="mug_01")
+    name, args = rig.ur.motions[-1]
+    assert name == "moveJ"
+    np.testing.assert_allclose(args[0], rig.config.robot.home_joints)
+    assert any(line.startswith("SET POS 0 ") for line in rig.server.lines)
+    assert "Place object 'mug_01' on the table" in caplog.text
+
+
+def test_capture_returns_one_calibrated_frame_per_camera(rig):
+    frames = rig.cell.capture()
+    assert [f.name for f in frames] == ["front", "side"]
+    for frame, camera in zip(frames, rig.config.cameras):
+        np.testing.assert_allclose(frame.T_world_cam, camera.T_world_cam)
+        np.testing.assert_allclose(frame.K, K)
+        assert frame.depth.shape == (120, 160) and (frame.depth > 0).mean() > 0.5
+
+
+def test_object_mesh_points_to_perception(rig):
+    with pytest.raises(NotImplementedError, match="perceive_object"):
+        rig.cell.object_mesh()
+
+
+def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
+    rig.cell.reset()
+    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    assert outcome.reachable and outcome.lifted
+    assert outcome.lift_height == pytest.approx(0.2)
+    assert outcome.contacts_observed is False and len(outcome.touched_faces) == 0
+    assert outcome.contact_force == pytest.approx(rig.config.gripper.force)
+    # pre-grasp 10 cm up the approach axis, grasp, lift 20 cm, put back 1 cm above, retreat 10 cm
+    assert rig.heights() == [0.15, 0.05, 0.25, 0.06, 0.16]
+    for name, args in rig.ur.motions:
+        if name == "moveL":
+            assert args[1] == rig.config.motion.tool_speed and args[3] is True
+    opening = rig.cell.gripper.width_to_register(0.05 + rig.config.motion.opening_margin)
+    sets = [line for line in rig.server.lines if line.startswith("SET POS")]
+    assert sets[-3].startswith(f"SET POS {opening} ")  # opened to width + margin before the approach
+    assert sets[-2].startswith("SET POS 255 ")  # closed with the configured force
+    assert f"FOR {rig.cell.gripper.force_to_register(rig.config.gripper.force)}" in sets[-2]
+    assert sets[-1].startswith(f"SET POS {opening} ")  # released
+
+
+def test_object_slipping_during_the_lift_is_not_lifted(rig):
+    rig.cell.reset()
+    rig.ur.on_motion = lambda kind, target: rig.server.slip() if target[2] > 0.2 else None
+    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    assert outcome.reachable and not outcome.lifted and outcome.lift_height == 0.0
+    assert "not held" in outcome.message
+    assert rig.heights() == [0.15, 0.05, 0.25]  # nothing to put back
+
+
+def test_empty_grasp_is_not_lifted(tmp_path):
+    rig = Rig(tmp_path, object_register=None)
+    try:
+        rig.cell.reset()
+        outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+        assert outcome.reachable and not outcome.lifted and "closed on an object: False" in outcome.message
+    finally:
+        rig.close()
+
+
+@pytest.mark.parametrize("grasp, width, reason", [
+    (top_down([-0.9, -0.1, 0.05]), 0.05, "outside the workspace"),
+    (top_down([-0.52, -0.1, 0.40]), 0.05, "lift"),  # lifting 20 cm would leave the box
+    (top_down([-0.52, -0.1, 0.01]), 0.05, "below the table"),
+    (top_down([-0.52, -0.1, 0.05]), 0.09, "exceeds the gripper stroke"),
+])
+def test_refused_grasps_send_no_motion(rig, grasp, width, reason):
+    rig.cell.reset()
+    motions, lines = len(rig.ur.motions), len(rig.server.lines)
+    outcome = rig.cell.execute(grasp, width)
+    assert not outcome.reachable and not outcome.lifted
+    assert reason in outcome.message
+    assert len(rig.ur.motions) == motions and len(rig.server.lines) == lines
+
+
+def test_grasp_without_inverse_kinematics_is_unreachable(rig):
+    rig.cell.reset()
+    rig.ur.reach = 0.3
+    motions = len(rig.ur.motions)
+    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    assert not outcome.reachable and "inverse-kinematics" in outcome.message
+    assert len(rig.ur.motions) == motions
+
+
+def test_connection_lost_while_lifting_stops_with_a_clear_error(rig):
+    rig.cell.reset()
+    rig.ur.motion_polls = 20
+
+    def drop_on_lift(kind, target):
+        if target[2] > 0.2:
+            rig.ur.disconnect_after_polls = 3
+
+    rig.ur.on_motion = drop_on_lift
+    with pytest.raises(ConnectionLostError, match="grasp aborted while lifting"):
+        rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    assert rig.heights()[-1] == 0.25
+
+
+def test_gripper_connection_lost_while_closing(rig):
+    rig.cell.reset()
+    rig.server.drop_on = "SET POS 255"
+    with pytest.raises(ConnectionLostError, match="grasp aborted while closing the gripper"):
+        rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    assert rig.heights() == [0.15, 0.05]  # never lifted
+
+
+def test_dry_run_moves_nothing(tmp_path, caplog):
+    rig = Rig(tmp_path, dry_run=True)
+    try:
+        with caplog.at_level(logging.INFO):
+            rig.cell.reset()
+            outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+        assert outcome.reachable and not outcome.lifted and "dry run" in outcome.message
+        assert rig.ur.control_created == 0 and rig.ur.receive_created == 0 and rig.ur.commands == []
+        assert rig.server.connections == 0 and rig.server.lines == []
+        planned = [(m.kind, round(float(matrix_from_ur_pose(m.target)[2, 3]), 4)) if m.kind == "moveL" else m.kind
+                   for m in rig.cell.arm.planned_motions]
+        assert planned == ["moveJ", ("moveL", 0.15), ("moveL", 0.05), ("moveL", 0.25)]
+        assert caplog.text.count("[dry run] moveL") == 3
+        assert len(rig.cell.capture()) == 2  # cameras move nothing and still work
+        refused = rig.cell.execute(top_down([-0.9, -0.1, 0.05]), 0.05)
+        assert not refused.reachable
+    finally:
+        rig.close()
+
+
+def test_close_shuts_everything_down_once(rig):
+    rig.cell.close()
+    names = [name for name, _ in rig.ur.commands]
+    assert "stopScript" in names and names[-1] == "receive.disconnect"
+    assert all(p.stopped for p in rig.pipelines.values())
+    rig.cell.close()
+    assert [name for name, _ in rig.ur.commands] == names
+    with pytest.raises(ConnectionLostError, match="closed"):
+        rig.cell.capture()

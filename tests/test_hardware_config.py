@@ -1,0 +1,98 @@
+"""Cell configuration: the shipped example loads, and every kind of mistake is reported naming its field."""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+
+from fakes_hardware import EXAMPLE_CONFIG, example_config, write_config
+from hardware.config import ConfigError, load_config
+
+
+def test_the_example_config_loads_with_its_values():
+    config = load_config(EXAMPLE_CONFIG)
+    assert config.robot.ip == "192.168.1.10" and config.robot.model == "ur5"
+    assert config.robot.T_flange_gripper[2, 3] == pytest.approx(0.155)
+    assert config.gripper.host == config.robot.ip and config.gripper.port == 63352
+    assert [c.serial for c in config.cameras] == ["012345678901", "012345678902"]
+    assert config.cameras[0].T_world_cam.shape == (4, 4)
+    np.testing.assert_allclose(config.limits.workspace_min, [-0.75, -0.40, 0.0])
+    assert config.motion.lift_height == pytest.approx(0.2) and config.motion.hold_time == pytest.approx(1.0)
+    assert config.interactive is False
+
+
+def mutate(tmp_path, change) -> ConfigError:
+    data = copy.deepcopy(example_config())
+    change(data)
+    with pytest.raises(ConfigError) as info:
+        load_config(write_config(tmp_path / "cell.yaml", data))
+    return info.value
+
+
+@pytest.mark.parametrize("change, field, problem", [
+    (lambda d: d.pop("robot"), "robot", "missing section"),
+    (lambda d: d["robot"].pop("home_joints"), "robot.home_joints", "missing"),
+    (lambda d: d["robot"].update(home_joints=[0, 1, 2]), "robot.home_joints", "6 finite numbers"),
+    (lambda d: d["robot"].update(model="ur10"), "robot.model", "must be one of"),
+    (lambda d: d["robot"].update(ip="192.168.1.10; rm"), "robot.ip", "IP address or host name"),
+    (lambda d: d["robot"].update(tcp_offset={"xyz": [0, 0, -0.1]}), "robot.tcp_offset", "in front of the flange"),
+    (lambda d: d["robot"].update(tcp_offset={"xyz": [0, 0, 0.15], "rpy": [0, 0]}), "robot.tcp_offset.rpy",
+     "3 finite numbers"),
+    (lambda d: d["robot"].update(speed=1.0), "robot.speed", "unknown key"),
+    (lambda d: d["gripper"].update(port=70000), "gripper.port", "must be in [1, 65535]"),
+    (lambda d: d["gripper"].update(closed_register=2), "gripper.closed_register", "greater than"),
+    (lambda d: d["gripper"].update(stroke=85), "gripper.stroke", "metres"),
+    (lambda d: d["gripper"].update(force=150.0), "gripper.force", "exceeds limits.max_grip_force"),
+    (lambda d: d["limits"].update(max_tool_speed=-1), "limits.max_tool_speed", "positive number, got -1"),
+    (lambda d: d["limits"].update(max_tool_speed="fast"), "limits.max_tool_speed", "finite number"),
+    (lambda d: d["limits"].update(max_tool_speed=2.0), "limits.max_tool_speed", "above the 1 m/s"),
+    (lambda d: d["motion"].update(tool_speed=0.5), "motion.tool_speed", "exceeds limits.max_tool_speed"),
+    (lambda d: d["workspace"].update(max=[-0.8, 0.2, 0.55]), "workspace.max", "must exceed workspace.min"),
+    (lambda d: d["table"].update(height=1.0), "table.height", "inside the workspace"),
+    (lambda d: d.update(cameras=[]), "cameras", "non-empty list"),
+    (lambda d: d["cameras"].append({"serial": "999"}), "cameras[2].serial", "no T_world_cam for camera 999"),
+    (lambda d: d["cameras"].append(dict(d["cameras"][0], name="again")), "cameras", "distinct"),
+    (lambda d: d["cameras"][0].update(fps=0), "cameras[0].fps", "must be in [1, 300]"),
+    (lambda d: d["calibration"].update(file="x.yaml"), "calibration", "exactly one of"),
+    (lambda d: d["calibration"]["T_world_cam"]["012345678901"][0].__setitem__(0, 2.0),
+     "calibration.T_world_cam.012345678901", "not a proper rotation"),
+    (lambda d: d.update(interactive="yes"), "interactive", "true or false"),
+    (lambda d: d.update(robots={}), "robots", "unknown key"),
+])
+def test_errors_name_the_field(tmp_path, change, field, problem):
+    error = mutate(tmp_path, change)
+    message = str(error)
+    assert message.startswith(f"{tmp_path / 'cell.yaml'}: {field}:"), message
+    assert problem in message, message
+    assert isinstance(error, ValueError)
+
+
+def test_missing_and_malformed_files(tmp_path):
+    with pytest.raises(ConfigError, match="not found"):
+        load_config(tmp_path / "absent.yaml")
+    (tmp_path / "broken.yaml").write_text("robot: [unclosed\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(tmp_path / "broken.yaml")
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="top level must be a mapping"):
+        load_config(tmp_path / "list.yaml")
+    data = example_config()
+    data["calibration"] = {"file": "missing_calibration.yaml"}
+    with pytest.raises(ConfigError, match="calibration.file: calibration file .* not found"):
+        load_config(write_config(tmp_path / "cell.yaml", data))
+
+
+def test_defaults_fill_optional_fields(tmp_path):
+    data = example_config()
+    data.pop("motion")
+    data.pop("interactive")
+    data["gripper"] = {}
+    data["cameras"] = [{"serial": 12345678901}]  # unquoted serials are read as strings
+    data["calibration"] = {"T_world_cam": {"12345678901": {"xyz": [0.0, -0.8, 0.6], "rpy": [-2.2, 0.0, 0.0]}}}
+    config = load_config(write_config(tmp_path / "cell.yaml", data))
+    assert config.gripper.port == 63352 and config.gripper.host == "192.168.1.10"
+    assert config.motion.tool_speed == pytest.approx(0.1) and config.motion.lift_height == pytest.approx(0.2)
+    assert config.cameras[0].serial == "12345678901" and config.cameras[0].name == "cam12345678901"
+    assert config.cameras[0].T_world_cam[:3, 3] == pytest.approx([0.0, -0.8, 0.6])
