@@ -157,10 +157,11 @@ def transfer_labels(
 class ObjectSegmenter:
     """Segments one mesh for several methods, sharing the coarse votes and the decomposition sweep.
 
-    Mirrors `seggrasp.segment.segment`: the votes, the decomposition and the fusion run on the repaired working
-    mesh, and every per-face result is lifted back to the order of `mesh`'s faces. `gt_labels` (prompt indices per
-    face of `mesh`, -1 elsewhere) feed the simulated detector and the oracle; `coarse_scores` (from an earlier run
-    with the same object, detector and seed) skips rendering and detection.
+    The coarse votes come from `seggrasp.segment.segment` (refine="none") and are lifted to `mesh`'s face order;
+    the decomposition sweep and the fusion then run on `mesh` itself, in its own face order, which is the mesh the
+    bundled decomposition caches (assets/decompositions/) were computed for. `gt_labels` (prompt indices per face
+    of `mesh`, -1 elsewhere) feed the simulated detector and the oracle; `coarse_scores` (from an earlier run with
+    the same object, detector and seed) skips rendering and detection.
     """
 
     def __init__(
@@ -196,10 +197,10 @@ class ObjectSegmenter:
         return self._coarse
 
     def partitions(self) -> list[Partition]:
-        """The working mesh's distinct decompositions, finest first (cached on disk by seggrasp.decompose)."""
+        """`mesh`'s distinct decompositions, finest first (cached on disk by seggrasp.decompose)."""
         if self._partitions is None:
             config = DecompositionConfig(seed=self.seed)
-            self._partitions = decompose_sweep(self.prepared.mesh, config, cache_dir=self.decomposition_cache)
+            self._partitions = decompose_sweep(self.mesh, config, cache_dir=self.decomposition_cache)
         return self._partitions
 
     def refined_scores(self, mode: str, partitions: list[Partition] | None = None) -> np.ndarray:
@@ -209,8 +210,7 @@ class ObjectSegmenter:
         if mode == "none":
             return scores
         parts = self.partitions() if partitions is None else partitions
-        working = refine_scores(self.prepared.from_source(scores), parts, self.prepared.mesh.area_faces, mode)
-        return self.prepared.to_source(working)
+        return refine_scores(scores, parts, self.mesh.area_faces, mode)
 
     def plan(self, method: str, T_world_obj: np.ndarray) -> PartPlan:
         """Face labels (and, for shapegrasp, grasps) of `method` on this mesh."""
@@ -223,7 +223,7 @@ class ObjectSegmenter:
         if method == "shapegrasp":
             partitions = self.partitions()
             chosen = partitions[choose_partition([p.threshold for p in partitions], SHAPEGRASP_THRESHOLD)]
-            part_of_face = self.prepared.to_source(chosen.part_of_face)
+            part_of_face = chosen.part_of_face
             votes = part_votes(self.coarse_scores(), part_of_face, self.mesh.area_faces)
             grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)
             return PartPlan(method, self.detector.label, shapegrasp_labels(votes, part_of_face), grasps)

@@ -127,23 +127,26 @@ class AntipodalSampler:
         return grasps
 
     def _collision_free(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-        """True where no cloud point lies inside a finger or the palm (vectorised over chunks of poses)."""
+        """True where no cloud point lies inside a finger, the palm or the wrist (vectorised over chunks)."""
         g = self.gripper
+        # the fingers' x range depends on the opening: test them through |x| against [half, half + thickness]
+        fixed = g.boxes(0.0)[2:].astype(np.float32)  # palm, wrist
+        finger_lo, finger_hi = g.palm_top, g.tip_beyond_origin
         free = np.ones(len(poses), dtype=bool)
         cloud32 = cloud.astype(np.float32)
-        tip, base = g.tip_beyond_origin, g.tip_beyond_origin - g.finger_length
         for start in range(0, len(poses), COLLISION_CHUNK):
             chunk = poses[start : start + COLLISION_CHUNK].astype(np.float32)
             half = (0.5 * openings[start : start + COLLISION_CHUNK]).astype(np.float32)[:, None]
-            # cloud in each gripper frame: R^T (x - t)  ->  (G, M, 3)
             rotations = chunk[:, :3, :3]
+            # cloud in each gripper frame: R^T (x - t)  ->  (G, M, 3)
             local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
-            x, y, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
-            in_finger = (x >= half) & (x <= half + g.finger_thickness) & (y <= 0.5 * g.pad_width)
-            in_finger &= (z >= base) & (z <= tip)
-            in_palm = (x <= 0.5 * g.palm_width) & (y <= 0.5 * g.palm_thickness)
-            in_palm &= (z >= base - g.palm_depth) & (z <= base)
-            free[start : start + COLLISION_CHUNK] = ~(in_finger | in_palm).any(axis=1)
+            x, y, z = local[..., 0], local[..., 1], local[..., 2]
+            ax = np.abs(x)
+            hit = (ax >= half) & (ax <= half + g.finger_thickness) & (np.abs(y) <= 0.5 * g.finger_width)
+            hit &= (z >= finger_lo) & (z <= finger_hi)
+            for lo, hi in fixed:
+                hit |= (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])
+            free[start : start + COLLISION_CHUNK] = ~hit.any(axis=1)
         return free
 
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:

@@ -17,21 +17,27 @@ import trimesh
 class GripperGeometry:
     """Box model of a parallel gripper for collision checks, in the gripper frame (metres).
 
-    Defaults are the Robotiq 2F-85: 85 mm stroke, pads ~20 mm wide (y) and ~40 mm long (z). The origin is between
-    the pad centres, so the fingertips reach `tip_beyond_origin` (half a pad) past the contacts along +z. Each
-    finger is a box of `finger_thickness` (x) x `pad_width` (y) x `finger_length` (z) just outside the pre-grasp
-    opening; the palm (plus the wrist behind it) is one box below the fingers.
+    Defaults are the Robotiq 2F-85 as the simulated one measures (link bounding boxes with the gripper frame at
+    the origin, sim/gripper.py): 85 mm stroke; the origin is between the pad centres and the fingertips reach
+    `tip_beyond_origin` past it along +z. Boxes, all conservative:
+
+    - two fingers (pad + inner finger + outer finger tip): x from the pre-grasp opening outwards by
+      `finger_thickness`, |y| <= `finger_width` / 2, z from `palm_top` to `tip_beyond_origin`;
+    - the palm (knuckles and gripper body): |x| <= `palm_width` / 2, |y| <= `palm_thickness` / 2,
+      z from `palm_top - palm_depth` to `palm_top`; nothing may sit deeper than `palm_top` between the fingers;
+    - the wrist behind it: |x|, |y| <= `wrist_width` / 2 over `wrist_depth`.
     """
 
     max_opening: float = 0.085
-    pad_width: float = 0.020
-    pad_length: float = 0.040
-    finger_thickness: float = 0.012
-    finger_length: float = 0.055
+    finger_thickness: float = 0.030
+    finger_width: float = 0.036
     tip_beyond_origin: float = 0.020
-    palm_width: float = 0.12  # x
-    palm_thickness: float = 0.065  # y
-    palm_depth: float = 0.10  # z, palm + coupling + wrist stub
+    palm_top: float = -0.040
+    palm_width: float = 0.160
+    palm_thickness: float = 0.085
+    palm_depth: float = 0.110
+    wrist_width: float = 0.090
+    wrist_depth: float = 0.120
     pre_grasp_margin: float = 0.012  # extra opening on each side of the contacts while approaching
 
     def pre_grasp_opening(self, width: np.ndarray | float) -> np.ndarray:
@@ -39,20 +45,17 @@ class GripperGeometry:
         return np.minimum(np.asarray(width, dtype=np.float64) + 2.0 * self.pre_grasp_margin, self.max_opening)
 
     def boxes(self, opening: float) -> np.ndarray:
-        """Axis-aligned boxes (3, 2, 3) = [finger -x, finger +x, palm] x [min corner, max corner], gripper frame."""
+        """Axis-aligned boxes (4, 2, 3) = [finger -x, finger +x, palm, wrist] x [min corner, max corner]."""
         half = 0.5 * float(opening)
-        tip = self.tip_beyond_origin
-        base = tip - self.finger_length
-        y = 0.5 * self.pad_width
-        fingers = [
-            [[-half - self.finger_thickness, -y, base], [-half, y, tip]],
-            [[half, -y, base], [half + self.finger_thickness, y, tip]],
-        ]
-        palm = [
-            [-0.5 * self.palm_width, -0.5 * self.palm_thickness, base - self.palm_depth],
-            [0.5 * self.palm_width, 0.5 * self.palm_thickness, base],
-        ]
-        return np.array(fingers + [palm], dtype=np.float64)
+        fy, tip, top = 0.5 * self.finger_width, self.tip_beyond_origin, self.palm_top
+        bottom = top - self.palm_depth
+        px, py, w = 0.5 * self.palm_width, 0.5 * self.palm_thickness, 0.5 * self.wrist_width
+        return np.array([
+            [[-half - self.finger_thickness, -fy, top], [-half, fy, tip]],
+            [[half, -fy, top], [half + self.finger_thickness, fy, tip]],
+            [[-px, -py, bottom], [px, py, top]],
+            [[-w, -w, bottom - self.wrist_depth], [w, w, bottom]],
+        ])
 
 
 ROBOTIQ_2F85 = GripperGeometry()
