@@ -67,13 +67,16 @@ class RealCell:
                     receive_factory: Callable[[str], Any] | None = None,
                     pipeline_factory: Callable[[str], Any] | None = None,
                     align_factory: Callable[[], Any] | None = None,
-                    camera_warmup_frames: int = 15) -> RealCell:
+                    camera_warmup_frames: int = 15, require_calibration: bool = True,
+                    with_cameras: bool = True) -> RealCell:
         """Load the YAML config, connect the arm, gripper and cameras, and activate the gripper.
 
         In dry run nothing connects to the robot or gripper (motions are checked and logged only); the cameras,
         which move nothing, are still used. The factories replace the ur_rtde / pyrealsense2 objects (tests).
+        `require_calibration=False` accepts uncalibrated cameras (to run the hand-eye calibration itself);
+        `with_cameras=False` leaves the cameras out (a grasp at a known point needs none).
         """
-        config = load_config(path)
+        config = load_config(path, require_calibration=require_calibration)
         guard = make_guard(config)
         arm = URArm(config.robot, guard, dry_run=dry_run, control_factory=control_factory,
                     receive_factory=receive_factory)
@@ -81,7 +84,7 @@ class RealCell:
         cameras = [RealSenseCamera(camera, pipeline=pipeline_factory(camera.serial) if pipeline_factory else None,
                                    align=align_factory() if align_factory else None,
                                    warmup_frames=camera_warmup_frames)
-                   for camera in config.cameras]
+                   for camera in (config.cameras if with_cameras else ())]
         cell = cls(config, arm, gripper, cameras, dry_run=dry_run)
         try:
             arm.connect()
@@ -186,12 +189,12 @@ class RealCell:
                 time.sleep(motion.hold_time)
             held = self.gripper.object_detected()
             width_held = self.gripper.width()
-            if held:
+            if held or self.dry_run:  # a dry run plans the whole sequence
                 stage = "putting the object back"
                 self.arm.move_linear(place, motion.tool_speed, motion.tool_acceleration)
             stage = "releasing"
             self.gripper.move_to_width(opening)
-            if held:
+            if held or self.dry_run:
                 stage = "backing off"
                 self.arm.move_linear(retreat, motion.tool_speed, motion.tool_acceleration)
         except HardwareError as exc:

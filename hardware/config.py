@@ -230,8 +230,12 @@ class _Reader:
 _TOP_KEYS = {"robot", "gripper", "cameras", "calibration", "workspace", "table", "limits", "motion", "interactive"}
 
 
-def load_config(path: str | Path) -> CellConfig:
-    """Read and validate a cell YAML file; raises `ConfigError` naming the field on any problem."""
+def load_config(path: str | Path, *, require_calibration: bool = True) -> CellConfig:
+    """Read and validate a cell YAML file; raises `ConfigError` naming the field on any problem.
+
+    With `require_calibration=False` (used to calibrate the cameras in the first place) the calibration section
+    may be absent or incomplete; uncalibrated cameras get `T_world_cam` = identity.
+    """
     path = Path(path)
     if not path.is_file():
         raise ConfigError(f"{path}: cell configuration file not found")
@@ -239,10 +243,10 @@ def load_config(path: str | Path) -> CellConfig:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    return parse_config(data, path)
+    return parse_config(data, path, require_calibration=require_calibration)
 
 
-def parse_config(data: Any, path: Path) -> CellConfig:
+def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> CellConfig:
     """Validate already-parsed YAML `data`; `path` names the source in errors and anchors relative file paths."""
     r = _Reader(str(path))
     if not isinstance(data, dict):
@@ -253,7 +257,7 @@ def parse_config(data: Any, path: Path) -> CellConfig:
     gripper = _parse_gripper(r, data, robot.ip)
     limits = _parse_limits(r, data)
     motion = _parse_motion(r, data, limits, gripper)
-    cameras = _parse_cameras(r, data, path)
+    cameras = _parse_cameras(r, data, path, require_calibration)
     return CellConfig(path=path, robot=robot, gripper=gripper, cameras=cameras, limits=limits, motion=motion,
                       interactive=r.boolean(data, "interactive", "", False))
 
@@ -367,13 +371,13 @@ def _parse_motion(r: _Reader, data: dict, limits: Limits, gripper: GripperConfig
     return motion
 
 
-def _parse_cameras(r: _Reader, data: dict, path: Path) -> tuple[CameraConfig, ...]:
+def _parse_cameras(r: _Reader, data: dict, path: Path, require_calibration: bool) -> tuple[CameraConfig, ...]:
     if "cameras" not in data:
         raise r.error("cameras", "missing (a list of {serial: ...} entries)")
     entries = data["cameras"]
     if not isinstance(entries, list) or not entries:
         raise r.error("cameras", "must be a non-empty list of {serial: ...} entries")
-    extrinsics = _parse_calibration(r, data, path)
+    extrinsics = _parse_calibration(r, data, path, require_calibration)
     cameras: list[CameraConfig] = []
     for index, entry in enumerate(entries):
         p = f"cameras[{index}]."
@@ -381,7 +385,7 @@ def _parse_cameras(r: _Reader, data: dict, path: Path) -> tuple[CameraConfig, ..
             raise r.error(f"cameras[{index}]", f"must be a mapping with a serial, got {entry!r}")
         r.check_keys(entry, p, {"serial", "name", "width", "height", "fps"})
         serial = r.string(entry, "serial", p)
-        if serial not in extrinsics:
+        if serial not in extrinsics and require_calibration:
             raise r.error(f"{p}serial", f"no T_world_cam for camera {serial} in the calibration")
         cameras.append(CameraConfig(
             serial=serial,
@@ -389,7 +393,7 @@ def _parse_cameras(r: _Reader, data: dict, path: Path) -> tuple[CameraConfig, ..
             width=r.integer(entry, "width", p, 640, low=1, high=4096),
             height=r.integer(entry, "height", p, 480, low=1, high=4096),
             fps=r.integer(entry, "fps", p, 30, low=1, high=300),
-            T_world_cam=extrinsics[serial],
+            T_world_cam=extrinsics.get(serial, np.eye(4)),
         ))
     serials = [c.serial for c in cameras]
     if len(set(serials)) != len(serials):
@@ -400,8 +404,10 @@ def _parse_cameras(r: _Reader, data: dict, path: Path) -> tuple[CameraConfig, ..
     return tuple(cameras)
 
 
-def _parse_calibration(r: _Reader, data: dict, path: Path) -> dict[str, np.ndarray]:
-    section = r.section(data, "calibration", "", {"file", "T_world_cam"})
+def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> dict[str, np.ndarray]:
+    section = r.section(data, "calibration", "", {"file", "T_world_cam"}, required=required)
+    if not section and not required:
+        return {}
     if ("file" in section) == ("T_world_cam" in section):
         raise r.error("calibration", "give exactly one of calibration.file or calibration.T_world_cam")
     if "file" in section:
@@ -410,6 +416,8 @@ def _parse_calibration(r: _Reader, data: dict, path: Path) -> dict[str, np.ndarr
         file = Path(r.string(section, "file", "calibration."))
         if not file.is_absolute():
             file = path.parent / file
+        if not file.exists() and not required:
+            return {}
         try:
             return load_extrinsics(file)
         except ValueError as exc:

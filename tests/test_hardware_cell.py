@@ -196,8 +196,9 @@ def test_dry_run_moves_nothing(tmp_path, caplog):
         assert rig.server.connections == 0 and rig.server.lines == []
         planned = [(m.kind, round(float(matrix_from_ur_pose(m.target)[2, 3]), 4)) if m.kind == "moveL" else m.kind
                    for m in rig.cell.arm.planned_motions]
-        assert planned == ["moveJ", ("moveL", 0.15), ("moveL", 0.05), ("moveL", 0.25)]
-        assert caplog.text.count("[dry run] moveL") == 3
+        assert planned == ["moveJ", ("moveL", 0.15), ("moveL", 0.05), ("moveL", 0.25), ("moveL", 0.06),
+                           ("moveL", 0.16)]
+        assert caplog.text.count("[dry run] moveL") == 5
         assert len(rig.cell.capture()) == 2  # cameras move nothing and still work
         refused = rig.cell.execute(top_down([-0.9, -0.1, 0.05]), 0.05)
         assert not refused.reachable

@@ -96,3 +96,16 @@ def test_defaults_fill_optional_fields(tmp_path):
     assert config.motion.tool_speed == pytest.approx(0.1) and config.motion.lift_height == pytest.approx(0.2)
     assert config.cameras[0].serial == "12345678901" and config.cameras[0].name == "cam12345678901"
     assert config.cameras[0].T_world_cam[:3, 3] == pytest.approx([0.0, -0.8, 0.6])
+
+
+def test_uncalibrated_cameras_are_accepted_only_when_asked(tmp_path):
+    data = example_config()
+    data["calibration"] = {"file": "not_yet.yaml"}
+    path = write_config(tmp_path / "cell.yaml", data)
+    with pytest.raises(ConfigError, match="calibration.file"):
+        load_config(path)
+    config = load_config(path, require_calibration=False)
+    np.testing.assert_allclose(config.cameras[0].T_world_cam, np.eye(4))
+    data.pop("calibration")
+    config = load_config(write_config(path, data), require_calibration=False)
+    assert len(config.cameras) == 2

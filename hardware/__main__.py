@@ -1,0 +1,148 @@
+"""Command line for the real cell: `python -m hardware check|calibrate|grasp CONFIG [...] [--dry-run]`.
+
+- `check`: validate the config and print a summary; with `--connect`, also connect, read the arm and gripper
+  state and capture one frame per camera.
+- `calibrate`: eye-to-hand calibration of one table-mounted camera with a checkerboard held by the gripper; the
+  gripper visits the poses listed in a YAML file (`poses: [{xyz: [...], rpy: [...]}, ...]` or 4x4 matrices),
+  and the camera's `T_world_cam` is merged into the calibration file.
+- `grasp`: one top-down grasp at a point (reset, execute, print the outcome) - the first grasp on a new cell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation
+
+from hardware.calibration import (Checkerboard, calibrate_eye_to_hand, collect_samples, eye_to_hand_residual,
+                                  load_extrinsics, save_extrinsics)
+from hardware.cell import RealCell
+from hardware.config import ConfigError, load_config, transform_from_config
+from hardware.errors import HardwareError
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m hardware", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+
+    check = commands.add_parser("check", help="validate a cell config (and optionally connect)")
+    check.add_argument("config", type=Path)
+    check.add_argument("--connect", action="store_true", help="connect and read the hardware's state")
+    check.add_argument("--dry-run", action="store_true", help="with --connect: do not connect to robot/gripper")
+
+    calibrate = commands.add_parser("calibrate", help="eye-to-hand calibration of one table-mounted camera")
+    calibrate.add_argument("config", type=Path)
+    calibrate.add_argument("--serial", required=True, help="the camera to calibrate")
+    calibrate.add_argument("--poses", required=True, type=Path, help="YAML file with the gripper poses to visit")
+    calibrate.add_argument("--board", default="7x6", help="inner corners COLUMNSxROWS (one even, one odd)")
+    calibrate.add_argument("--square", type=float, required=True, help="checkerboard square size in metres")
+    calibrate.add_argument("--out", type=Path, help="calibration file (default: the config's calibration.file)")
+    calibrate.add_argument("--method", default="shah", choices=["shah", "li"])
+    calibrate.add_argument("--dry-run", action="store_true", help="plan and log the motions only")
+
+    grasp = commands.add_parser("grasp", help="one top-down grasp at a world point")
+    grasp.add_argument("config", type=Path)
+    grasp.add_argument("--at", nargs=3, type=float, required=True, metavar=("X", "Y", "Z"),
+                       help="world point between the pads at the grasp (metres)")
+    grasp.add_argument("--yaw", type=float, default=0.0, help="rotation of the closing direction about z (rad)")
+    grasp.add_argument("--width", type=float, required=True, help="object width between the pads (metres)")
+    grasp.add_argument("--dry-run", action="store_true", help="plan and log the motions only")
+    return parser
+
+
+def _check(args: argparse.Namespace) -> None:
+    config = load_config(args.config)
+    limits = config.limits
+    print(f"{args.config}: valid. UR {config.robot.model} at {config.robot.ip}, gripper at "
+          f"{config.gripper.host}:{config.gripper.port}, cameras {[c.serial for c in config.cameras]}")
+    print(f"workspace {limits.workspace_min.tolist()} .. {limits.workspace_max.tolist()}, table at "
+          f"{limits.table_height} m, tool <= {limits.max_tool_speed} m/s, grip <= {limits.max_grip_force} N")
+    if not args.connect:
+        return
+    cell = RealCell.from_config(args.config, dry_run=args.dry_run)
+    try:
+        print("gripper pose (world):", np.round(cell.arm.tcp_pose(), 4).tolist())
+        print("joints (rad):", np.round(cell.arm.joints(), 4).tolist())
+        print("gripper:", cell.gripper.state(), f"width {cell.gripper.width() * 1000:.1f} mm")
+        for frame in cell.capture():
+            valid = frame.depth > 0
+            print(f"camera {frame.name}: {frame.rgb.shape[1]}x{frame.rgb.shape[0]}, {valid.mean():.0%} depth, "
+                  f"median {np.median(frame.depth[valid]) if valid.any() else 0:.3f} m")
+    finally:
+        cell.close()
+
+
+def _read_poses(path: Path) -> list[np.ndarray]:
+    data = yaml.safe_load(path.read_text())
+    if not isinstance(data, dict) or not isinstance(data.get("poses"), list) or not data["poses"]:
+        raise ValueError(f"{path}: expected 'poses:' with a list of 4x4 matrices or {{xyz, rpy}} entries")
+    return [transform_from_config(pose, f"poses[{index}]", str(path)) for index, pose in enumerate(data["poses"])]
+
+
+def _calibrate(args: argparse.Namespace) -> None:
+    columns, rows = (int(n) for n in args.board.lower().split("x"))
+    board = Checkerboard(columns, rows, args.square)
+    poses = _read_poses(args.poses)
+    config = load_config(args.config, require_calibration=False)
+    out = args.out
+    if out is None:
+        file = yaml.safe_load(args.config.read_text()).get("calibration", {}).get("file")
+        if not file:
+            raise ValueError("give --out (the config has no calibration.file to update)")
+        out = Path(file) if Path(file).is_absolute() else args.config.parent / file
+    if args.serial not in {c.serial for c in config.cameras}:
+        raise ValueError(f"camera {args.serial} is not in {args.config}")
+    cell = RealCell.from_config(args.config, dry_run=args.dry_run, require_calibration=False)
+    try:
+        camera = next(c for c in cell.cameras if c.config.serial == args.serial)
+        motion = config.motion
+        grippers, boards = collect_samples(cell.arm, camera, poses, board, speed=motion.tool_speed,
+                                           acceleration=motion.tool_acceleration)
+        cell.arm.move_joints(config.robot.home_joints, motion.joint_speed, motion.joint_acceleration)
+    finally:
+        cell.close()
+    if len(boards) < 3:
+        raise ValueError(f"the board was seen in only {len(boards)} of {len(poses)} poses; need at least 3")
+    T_world_cam, T_gripper_target = calibrate_eye_to_hand(grippers, boards, args.method)
+    residual = eye_to_hand_residual(T_world_cam, T_gripper_target, grippers, boards)
+    extrinsics = load_extrinsics(out) if out.exists() else {}
+    extrinsics[args.serial] = T_world_cam
+    save_extrinsics(out, extrinsics, {"last_calibrated": args.serial, "method": args.method,
+                                      "samples": len(boards), "residual_m": round(residual, 6)})
+    print(f"camera {args.serial}: T_world_cam written to {out} ({len(boards)}/{len(poses)} poses, "
+          f"residual {residual * 1000:.2f} mm)")
+
+
+def _grasp(args: argparse.Namespace) -> None:
+    T = np.eye(4)
+    T[:3, :3] = (Rotation.from_euler("z", args.yaw) * Rotation.from_euler("x", np.pi)).as_matrix()
+    T[:3, 3] = args.at
+    cell = RealCell.from_config(args.config, dry_run=args.dry_run, with_cameras=False)
+    try:
+        cell.reset()
+        outcome = cell.execute(T, args.width)
+    finally:
+        cell.close()
+    print(json.dumps(outcome.to_json(), indent=2))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns the exit code (1 with a message on bad input or a hardware failure)."""
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        {"check": _check, "calibrate": _calibrate, "grasp": _grasp}[args.command](args)
+    except (ConfigError, ValueError, HardwareError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
