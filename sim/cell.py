@@ -24,6 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Frame, GraspOutcome
 from seggrasp.objects import ObjectModel
+from seggrasp.perception import Workspace
 from sim.cameras import DepthNoise, VirtualD435, look_at
 from sim.gripper import MAX_WIDTH, FloatingGripper, GripperSettings
 from sim.robot import ArmSettings, UR5Arm
@@ -32,6 +33,8 @@ from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSe
 log = logging.getLogger(__name__)
 
 EMBODIMENTS = ("arm", "floating")
+#: Half side (m) of the square workspace box around the drop zone that perception crops to.
+WORKSPACE_HALF_SIZE = 0.25
 #: Floating gripper's home: above the workspace, pointing down.
 FLOATING_HOME = np.array([[1, 0, 0, 0.5], [0, -1, 0, 0.0], [0, 0, -1, 0.45], [0, 0, 0, 1.0]])
 
@@ -194,6 +197,13 @@ class SimCell:
 
     # --- helpers -----------------------------------------------------------------------------------------------
 
+    @property
+    def workspace(self) -> Workspace:
+        """The box where the object is (for perception): the table area around the drop zone, 45 cm high."""
+        x, y = (float(v) for v in WORKSPACE_CENTER)
+        half = WORKSPACE_HALF_SIZE
+        return Workspace((x - half, y - half, TABLE_TOP_Z - 0.02), (x + half, y + half, TABLE_TOP_Z + 0.45), TABLE_TOP_Z)
+
     def _require_scene(self) -> None:
         if self.world is None:
             raise RuntimeError("this SimCell is closed")
@@ -252,6 +262,8 @@ class GraspPrimitive:
             if paths is not None:
                 break
         if paths is None:
+            self.robot.place(start)  # the checks posed the robot kinematically: put it back
+            self.gripper.set_width(self.gripper.max_width)
             return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=reason)
         self.robot.place(paths[0][0])
         self.gripper.set_width(opening)

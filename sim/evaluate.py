@@ -58,7 +58,7 @@ DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "oracle", "shapegrasp")
 SIMULATED_PRESETS = ("perfect", "typical", "hard")
 REAL_DETECTORS = ("grounding-dino", "owlv2")
 QUICK_METHODS = ("oracle", "seggrasp", "coarse")
-QUICK_CATEGORIES = 3  # --quick: the first object of this many categories
+QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
 QUICK_TOP_K = 3
 ABLATION_METHODS = ("coarse", "multi", "opt", "seggrasp")
 #: Settings a resumed run must share with the run it continues.
@@ -523,7 +523,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--out", default=None, help="output folder (default results/evaluate-<detector>-<embodiment>)")
     parser.add_argument("--resume", action="store_true", help="continue a run in --out, skipping recorded trials")
     parser.add_argument("--quick", action="store_true",
-                        help=f"CI profile: the first object of {QUICK_CATEGORIES} categories, methods "
+                        help=f"CI profile: the first object of the categories {','.join(QUICK_CATEGORIES)}, methods "
                         f"{','.join(QUICK_METHODS)}, top-{QUICK_TOP_K}, floating gripper unless --embodiment is given")
     parser.add_argument("--backend", choices=("sim", "real"), default="sim")
     parser.add_argument("--config", help="cell.yaml of the real cell (--backend real)")
@@ -578,23 +578,21 @@ def build_config(args: argparse.Namespace) -> RunConfig:
 
 
 def _select_objects(object_ids: list[str], categories: list[str], quick: bool) -> list[str]:
-    from seggrasp.objects import load_asset_set
+    from seggrasp.objects import asset_ids
 
-    twin = load_asset_set(categories or None)
-    if not twin:
+    if quick:
+        if object_ids or categories:
+            raise ValueError("--quick picks its own objects; drop --objects/--categories or --quick")
+        return [asset_ids([category])[0] for category in QUICK_CATEGORIES]
+    known = asset_ids(categories or None)
+    if not known:
         raise ValueError(f"no twin objects in categories {categories}")
-    known = {m.object_id: m.category for m in twin}
     if object_ids:
         missing = [o for o in object_ids if o not in known]
         if missing:
-            raise ValueError(f"unknown object id(s) {missing}; the twin has {sorted(known)}")
+            raise ValueError(f"unknown object id(s) {missing}; the twin has {known}")
         return object_ids
-    if quick:
-        firsts: dict[str, str] = {}
-        for object_id, category in known.items():
-            firsts.setdefault(category, object_id)
-        return [firsts[c] for c in sorted(firsts)[:QUICK_CATEGORIES]]
-    return list(known)
+    return known
 
 
 def _prepare_out(out: Path, config: RunConfig, resume: bool) -> None:

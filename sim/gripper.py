@@ -22,7 +22,6 @@ import pybullet
 
 from sim.world import PATH_RESOLUTION, World, linear_poses, pose_to_pb
 
-
 FINGER_JOINT = "finger_joint"
 #: Followers of `finger_joint` and their multipliers (the 2F-85's mimic joints).
 MIMIC_JOINTS = {
@@ -50,7 +49,6 @@ class GripperSettings:
 
     closing_speed: float = 1.5
     closing_torque: float = 2.5
-    opening_speed: float = 3.0
     stall_travel: float = 0.004  # rad over `stall_steps` steps: the finger has stalled
     stall_steps: int = 8
     follower_force: float = 50.0
@@ -71,9 +69,6 @@ class Robotiq2F85:
         self.finger_joint = names[FINGER_JOINT]
         self.mimic = {names[n]: m for n, m in MIMIC_JOINTS.items()}
         self.pad_links = tuple(links[n] for n in PAD_LINKS)
-        self.finger_links = tuple(
-            j for name, j in links.items() if any(k in name for k in ("knuckle", "finger"))
-        )
         world.pre_step_hooks.append(self._servo_followers)
         for link in self.pad_links:
             c.changeDynamics(
@@ -167,13 +162,6 @@ class Robotiq2F85:
         return float(np.linalg.norm(left[:3, 3] * np.array([-1.0, 1.0, 1.0]) - right[:3, 3]))
 
     # --- actuation --------------------------------------------------------------------------------------------
-
-    def command_open(self, width: float) -> None:
-        """Position-control the fingers towards the angle of `width`."""
-        self.world.client.setJointMotorControl2(
-            self.body, self.finger_joint, pybullet.POSITION_CONTROL, targetPosition=self.angle_for_width(width),
-            maxVelocity=self.settings.opening_speed, force=self.settings.closing_torque * 4,
-        )
 
     def command_close(self) -> None:
         """Velocity control towards closed with the force (torque) limit: squeezes whatever is between the pads."""
