@@ -35,6 +35,7 @@ from seggrasp.decompose import DecompositionConfig, SweepStats, decompose_sweep,
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.fusion import NORMALISATIONS, REFINE_MODES, refine_scores  # noqa: E402
 from seggrasp.labels import PartLabels, read_labels  # noqa: E402
+from seggrasp.mesh import mesh_hash  # noqa: E402
 from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
 from seggrasp.render import camera_rig, render_views  # noqa: E402
 from seggrasp.vote import labels_from_scores, vote  # noqa: E402
@@ -87,14 +88,15 @@ def primitive_meshes() -> list[LabelledMesh]:
     return [mug, hammer, pan]
 
 
-def twin_meshes() -> list[LabelledMesh]:
-    """The twin's objects: `seggrasp.objects.load_asset_set()` once assets/manifest.json exists, else the files."""
+def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
+    """The twin's objects (`seggrasp.objects.load_asset_set()`), or <id>/mesh.obj + labels.json under `twin_dir`
+    (a frozen copy, so that a long comparison keeps its meshes while the twin is regenerated)."""
     from seggrasp.objects import load_asset_set, read_obj_arrays
 
-    if (ASSETS / "manifest.json").is_file():
+    if twin_dir is None:
         return [LabelledMesh(m.object_id, m.category, m.mesh, m.labels) for m in load_asset_set() if m.labels]
     found = []
-    for folder in sorted((ASSETS / "objects").glob("*/")):
+    for folder in sorted(Path(twin_dir).glob("*/")):
         if (folder / "mesh.obj").is_file() and (folder / "labels.json").is_file():
             vertices, faces = read_obj_arrays(folder / "mesh.obj")[0]
             found.append(LabelledMesh(folder.name, folder.name.split("_")[0],
@@ -215,6 +217,7 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
         times["total_without_detector"] = sum(v for k, v in times.items() if k != "detect")
         records.append({
             "mesh": item.name, "category": item.category, "faces": int(len(item.mesh.faces)), "mode": mode,
+            "mesh_hash": mesh_hash(item.mesh),
             "preset": args.preset, "seed": args.seed, "times": times, "peak_rss_mb": peak_mb,
             "coacd_seconds": {f"{t:.2f}": s for t, s in sorted(stats.run_seconds.items())},
             "thresholds_run": sorted(stats.evaluated), "distinct_partitions": [p.threshold for p in partitions],
@@ -292,6 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--image-size", type=int, default=512)
     parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--twin-dir", type=Path, help="read twin objects from <dir>/<id>/{mesh.obj,labels.json}")
     parser.add_argument("--normalisation", default=None, choices=NORMALISATIONS)
     parser.add_argument("--no-warm", dest="warm", action="store_false", help="skip the warm-cache run")
     parser.add_argument("--out", type=Path, default=default_cache_dir().parent / "bench" / "bench_seg.jsonl")
@@ -306,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
 
     wanted = [w.strip() for w in args.meshes.split(",") if w.strip()]
     items: list[LabelledMesh] = []
-    twin = twin_meshes() if ({"twin", "big"} & set(wanted)) or any("_" in w for w in wanted) else []
+    twin = twin_meshes(args.twin_dir) if ({"twin", "big"} & set(wanted)) or any("_" in w for w in wanted) else []
     if "twin" in wanted:
         items += twin
     if "primitives" in wanted:
@@ -332,7 +336,8 @@ def main(argv: list[str] | None = None) -> int:
     records = []
     if args.resume and args.out.is_file():
         records = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
-        records = [r for r in records if r["mesh"] in {i.name for i in items} and r["mode"] in modes]
+        hashes = {i.name: mesh_hash(i.mesh) for i in items}
+        records = [r for r in records if hashes.get(r["mesh"]) == r.get("mesh_hash") and r["mode"] in modes]
     done = {(r["mesh"], r["mode"]) for r in records}
     args.out.parent.mkdir(parents=True, exist_ok=True)
     to_run = [args.run_only] if args.run_only else modes

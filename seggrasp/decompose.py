@@ -15,8 +15,8 @@ renumbered in order of first appearance so that equal partitions compare equal.
 Modes (`DecompositionConfig.mode`):
 - "reference": the paper's sweep, literally: thresholds 0.01..0.25 step 0.01, CoACD defaults, one run after the
   other, on the full-resolution mesh.
-- "fast" (default): the same grid of thresholds, but (1) the mesh is decimated to at most `max_faces` faces before
-  CoACD and the hulls are mapped back to the full-resolution faces, (2) coarser CoACD search settings, and
+- "fast" (default): the same grid of thresholds, but (1) the mesh is simplified (manifold3d, within 0.2 % of its
+  diagonal) before CoACD and the hulls are mapped back to the full-resolution faces, (2) coarser CoACD search settings, and
   (3) only the thresholds needed to find every distinct partition of the grid are run: the two ends and a few
   anchors first, then bisection inside every interval whose end partitions differ; an interval whose ends give the
   same partition is taken to be constant (CoACD's partition coarsens monotonically with the threshold in practice),
@@ -87,7 +87,8 @@ COACD_DEFAULTS = dict(
 #: Fast mode: coarser CoACD search (chosen by measurement, see bench/bench_seg.py) and decimation target.
 FAST_COACD = dict(COACD_DEFAULTS, preprocess_resolution=30, resolution=1000, mcts_nodes=15, mcts_iterations=60,
                   mcts_max_depth=2)
-FAST_MAX_FACES = 2000
+#: manifold3d simplification tolerance (fraction of the bounding-box diagonal): well below the finest concavity.
+FAST_SIMPLIFY_TOLERANCE = 0.002
 #: Thresholds the fast mode runs before bisecting (indices into the grid are derived from these values).
 FAST_ANCHORS = (0.01, 0.03, 0.08, 0.25)
 
@@ -97,7 +98,7 @@ class DecompositionConfig:
     """Parameters of a decomposition sweep. Fields left at None take the value of the `mode`.
 
     `coacd` overrides individual CoACD keyword arguments (keys as in `coacd.run_coacd`), on top of the mode's.
-    `max_faces` decimates the mesh before CoACD (0 = never). `adaptive` runs only the thresholds needed to find
+    `simplify_tolerance` simplifies the mesh before CoACD within that fraction of its diagonal (0 = never). `adaptive` runs only the thresholds needed to find
     every distinct partition of the grid (see the module docstring).
     """
 
@@ -105,7 +106,7 @@ class DecompositionConfig:
     seed: int = 0
     thresholds: tuple[float, ...] = PAPER_THRESHOLDS
     coacd: tuple[tuple[str, object], ...] = ()
-    max_faces: int | None = None
+    simplify_tolerance: float | None = None
     adaptive: bool | None = None
     log_level: str = "error"
 
@@ -133,8 +134,8 @@ class DecompositionConfig:
         for key in ("resolution", "preprocess_resolution", "mcts_nodes", "mcts_iterations", "mcts_max_depth"):
             if int(params[key]) < 1:
                 raise ValueError(f"CoACD parameter {key} must be >= 1, got {params[key]}")
-        if self.effective_max_faces < 0:
-            raise ValueError(f"max_faces must be >= 0, got {self.max_faces}")
+        if not (0.0 <= self.effective_simplify_tolerance < 0.1):
+            raise ValueError(f"simplify_tolerance must be in [0, 0.1), got {self.simplify_tolerance}")
 
     def coacd_params(self) -> dict:
         """Keyword arguments for `coacd.run_coacd` except `threshold` (and with the seed)."""
@@ -144,10 +145,10 @@ class DecompositionConfig:
         return params
 
     @property
-    def effective_max_faces(self) -> int:
-        if self.max_faces is not None:
-            return int(self.max_faces)
-        return 0 if self.mode == "reference" else FAST_MAX_FACES
+    def effective_simplify_tolerance(self) -> float:
+        if self.simplify_tolerance is not None:
+            return float(self.simplify_tolerance)
+        return 0.0 if self.mode == "reference" else FAST_SIMPLIFY_TOLERANCE
 
     @property
     def effective_adaptive(self) -> bool:
@@ -160,7 +161,7 @@ class DecompositionConfig:
             "threshold": round(float(threshold), 6),
             "coacd": {k: (v if isinstance(v, (int, float, str)) else str(v)) for k, v in
                       sorted(self.coacd_params().items())},
-            "max_faces": self.effective_max_faces,
+            "simplify_tolerance": self.effective_simplify_tolerance,
             "mapping": MAPPING_VERSION,
         }
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
@@ -260,17 +261,25 @@ def run_coacd_hulls(vertices: np.ndarray, faces: np.ndarray, threshold: float, p
     return [np.asarray(hull_vertices, dtype=np.float64) for hull_vertices, _ in result]
 
 
-def decimate(mesh: trimesh.Trimesh, max_faces: int) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of `mesh` simplified to at most `max_faces` faces (unchanged if already small)."""
-    if max_faces <= 0 or len(mesh.faces) <= max_faces:
-        return np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64)
-    import fast_simplification
+def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal.
 
-    reduction = 1.0 - max_faces / len(mesh.faces)
-    vertices, faces = fast_simplification.simplify(
-        np.asarray(mesh.vertices, dtype=np.float32), np.asarray(mesh.faces, dtype=np.int32), target_reduction=reduction
-    )
-    return np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64)
+    manifold3d's edge collapses keep a closed manifold closed, so CoACD (which aborts on some non-manifold input)
+    gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged (CoACD then
+    remeshes it itself in its preprocessing step).
+    """
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if tolerance <= 0:
+        return vertices, faces
+    import manifold3d
+
+    solid = manifold3d.Manifold(manifold3d.Mesh64(vertices, faces.astype(np.uint64)))
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        logger.info("mesh is not a closed manifold (%s): decomposing it without simplification", solid.status())
+        return vertices, faces
+    simplified = solid.simplify(tolerance * float(np.linalg.norm(mesh.extents))).to_mesh64()
+    return np.asarray(simplified.vert_properties[:, :3], dtype=np.float64), np.asarray(simplified.tri_verts, np.int64)
 
 
 def _decompose_once(job: tuple) -> tuple[float, np.ndarray, float]:
@@ -397,7 +406,7 @@ def decompose_sweep(
                 stats.cached.append(threshold)
         if missing:
             if coarse is None:
-                coarse = decimate(mesh, config.effective_max_faces)
+                coarse = simplify(mesh, config.effective_simplify_tolerance)
             jobs = [(coarse[0], coarse[1], centroids, scale, t, params, config.log_level) for t in missing]
             for threshold, parts, seconds in _run_jobs(jobs, workers):
                 found[threshold] = parts

@@ -1,0 +1,188 @@
+"""Decomposition sweep: face -> hull mapping, dedup, threshold selection, cache, determinism, reference mode."""
+
+import numpy as np
+import pytest
+import trimesh
+
+import seggrasp.decompose as decompose
+from seggrasp.decompose import (
+    COACD_DEFAULTS,
+    PAPER_THRESHOLDS,
+    DecompositionConfig,
+    Partition,
+    SweepStats,
+    canonical_parts,
+    decompose_sweep,
+    dedupe_partitions,
+    map_faces_to_hulls,
+    select_thresholds,
+    set_coacd_log_level,
+)
+
+#: Coarse CoACD settings that keep a run on a box pair well under a second.
+QUICK = dict(resolution=300, preprocess_resolution=20, mcts_nodes=8, mcts_iterations=20, mcts_max_depth=1)
+
+
+def box(extents, centre) -> trimesh.Trimesh:
+    mesh = trimesh.creation.box(extents)
+    mesh.apply_translation(centre)
+    return mesh
+
+
+def two_box_mesh() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A big box and a thin slab 2 cm apart, finely tessellated; returns the mesh and the box id of every face."""
+    big = box([0.1, 0.1, 0.1], [0.0, 0.0, 0.0]).subdivide().subdivide()
+    thin = box([0.1, 0.1, 0.01], [0.0, 0.0, 0.075]).subdivide().subdivide()
+    mesh = trimesh.util.concatenate([big, thin])
+    return mesh, np.repeat([0, 1], [len(big.faces), len(thin.faces)])
+
+
+def l_shape() -> trimesh.Trimesh:
+    """A closed L-shaped solid (two boxes united): CoACD splits it into two convex parts."""
+    return trimesh.boolean.union(
+        [box([0.1, 0.03, 0.03], [0.05, 0.0, 0.0]), box([0.03, 0.03, 0.1], [0.085, 0.0, 0.05])], engine="manifold"
+    ).subdivide()
+
+
+def test_map_faces_respects_containment_and_assigns_every_face():
+    mesh, truth = two_box_mesh()
+    hulls = [box([0.1, 0.1, 0.1], [0, 0, 0]).vertices, box([0.1, 0.1, 0.01], [0, 0, 0.075]).vertices]
+    parts = map_faces_to_hulls(mesh.triangles_center, hulls, scale=float(np.linalg.norm(mesh.extents)))
+    assert parts.shape == (len(mesh.faces),)
+    np.testing.assert_array_equal(parts, truth)
+
+
+def test_map_faces_outside_every_hull_takes_the_nearest_and_overlaps_go_to_the_smaller_hull():
+    hulls = [box([1.0, 1.0, 1.0], [0, 0, 0]).vertices, box([0.2, 0.2, 0.2], [0.5, 0, 0]).vertices]
+    centroids = np.array([
+        [-0.2, 0.0, 0.0],   # only in the big hull
+        [0.5, 0.0, 0.0],    # in both: the small (thin) part wins
+        [0.75, 0.0, 0.0],   # outside both, nearer the small hull (0.15) than the big one (0.25)
+        [0.0, 0.0, 0.8],    # outside both, nearer the big hull
+    ])
+    np.testing.assert_array_equal(map_faces_to_hulls(centroids, hulls, scale=1.0), [0, 1, 1, 0])
+
+
+def test_canonical_parts_and_dedupe_keep_the_earlier_threshold():
+    np.testing.assert_array_equal(canonical_parts(np.array([5, 5, 2, 9, 2])), [0, 0, 1, 2, 1])
+    a, b = np.array([0, 0, 1, 1]), np.array([0, 1, 2, 2])
+    partitions = [Partition(0.05, a.copy()), Partition(0.01, b.copy()), Partition(0.02, b.copy()),
+                  Partition(0.03, a.copy()), Partition(0.2, np.zeros(4, dtype=np.int64))]
+    kept = dedupe_partitions(partitions)
+    assert [p.threshold for p in kept] == [0.01, 0.03, 0.2]
+
+
+def test_threshold_selection_returns_every_distinct_partition_of_the_grid_with_fewer_runs():
+    grid = PAPER_THRESHOLDS
+    # Known hull counts per threshold: piecewise constant, coarsening with the threshold.
+    changes = {0.01: 6, 0.02: 5, 0.05: 4, 0.06: 3, 0.13: 2, 0.21: 1}
+    count_at = {}
+    current = None
+    for t in grid:
+        current = changes.get(t, current)
+        count_at[t] = current
+
+    def partition(t):
+        return canonical_parts(np.arange(12) * count_at[t] // 12)
+
+    runs = []
+
+    def evaluate(thresholds):
+        runs.extend(thresholds)
+        return {t: partition(t) for t in thresholds}
+
+    found = select_thresholds(grid, evaluate)
+    distinct = dedupe_partitions([Partition(t, p) for t, p in found.items()])
+    full = dedupe_partitions([Partition(t, partition(t)) for t in grid])
+    assert [p.threshold for p in distinct] == [p.threshold for p in full] == sorted(changes)
+    assert all(a.same_as(b) for a, b in zip(distinct, full))
+    assert len(runs) == len(set(runs)) < len(grid)
+
+
+def test_log_level_is_validated_before_coacd_sees_it():
+    with pytest.raises(ValueError, match="log level"):
+        DecompositionConfig(log_level="trace")
+    with pytest.raises(ValueError, match="log level"):
+        set_coacd_log_level("verbose")
+    with pytest.raises(ValueError, match="unknown CoACD parameters"):
+        DecompositionConfig(coacd={"resolutoin": 10})
+    with pytest.raises(ValueError, match="mode"):
+        DecompositionConfig(mode="quick")
+
+
+def test_reference_mode_runs_the_literal_paper_sweep(monkeypatch, tmp_path):
+    mesh = l_shape()
+    calls = []
+
+    def fake_coacd(vertices, faces, threshold, params):
+        calls.append((threshold, dict(params), len(faces)))
+        return [np.asarray(mesh.bounding_box.vertices)]
+
+    monkeypatch.setattr(decompose, "run_coacd_hulls", fake_coacd)
+    partitions = decompose_sweep(mesh, DecompositionConfig(mode="reference", seed=3), cache_dir=tmp_path)
+    assert [c[0] for c in calls] == [pytest.approx(0.01 * k) for k in range(1, 26)]  # serial, in order, in-process
+    assert all(c[1] == dict(COACD_DEFAULTS, seed=3) for c in calls)
+    assert all(c[2] == len(mesh.faces) for c in calls)  # no decimation
+    assert len(partitions) == 1 and partitions[0].threshold == pytest.approx(0.01)
+
+
+def test_cache_hit_on_second_call_and_miss_on_changed_parameter(monkeypatch, tmp_path):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05, 0.2), coacd=QUICK, adaptive=False)
+    first = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
+    assert all(p.part_of_face.shape == (len(mesh.faces),) for p in first)
+
+    calls = []
+    real = decompose.run_coacd_hulls
+
+    def counting(*args):
+        calls.append(args[2])
+        return real(*args)
+
+    monkeypatch.setattr(decompose, "run_coacd_hulls", counting)
+    stats = SweepStats()
+    second = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1, stats=stats)
+    assert calls == [] and sorted(stats.cached) == [0.05, 0.2]
+    assert len(second) == len(first) and all(a.same_as(b) for a, b in zip(first, second))
+
+    changed = DecompositionConfig(thresholds=(0.05, 0.2), coacd=dict(QUICK, resolution=301), adaptive=False)
+    decompose_sweep(mesh, changed, cache_dir=tmp_path, workers=1)
+    assert sorted(calls) == [0.05, 0.2]
+    calls.clear()
+    decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05, 0.2), coacd=QUICK, adaptive=False, seed=1),
+                    cache_dir=tmp_path, workers=1)
+    assert sorted(calls) == [0.05, 0.2]
+
+
+def test_sweep_is_deterministic_and_splits_the_l_shape(tmp_path):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05,), coacd=QUICK)
+    first = decompose_sweep(mesh, config, cache_dir=tmp_path / "a", workers=1)
+    second = decompose_sweep(mesh, config, cache_dir=tmp_path / "b", workers=1)
+    assert len(first) == len(second) == 1 and first[0].same_as(second[0])
+    assert first[0].n_parts >= 2
+
+
+def test_decimated_decomposition_maps_every_full_resolution_face(tmp_path):
+    mesh = l_shape().subdivide().subdivide()  # ~2.4k faces
+    config = DecompositionConfig(thresholds=(0.05,), coacd=QUICK, simplify_tolerance=0.002)
+    coarse_vertices, coarse_faces = decompose.simplify(mesh, 0.002)
+    assert len(coarse_faces) < len(mesh.faces) / 10
+    assert trimesh.Trimesh(coarse_vertices, coarse_faces, process=False).is_watertight
+    (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
+    assert partition.part_of_face.shape == (len(mesh.faces),)
+    assert partition.part_of_face.min() == 0
+    assert np.array_equal(np.unique(partition.part_of_face), np.arange(partition.n_parts))
+    # The arm tips lie in different convex parts.
+    tip_x = np.argmin(mesh.triangles_center[:, 0])
+    tip_z = np.argmax(mesh.triangles_center[:, 2])
+    assert partition.part_of_face[tip_x] != partition.part_of_face[tip_z]
+
+
+def test_parallel_workers_give_the_serial_result(tmp_path):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05, 0.1), coacd=QUICK, adaptive=False)
+    serial = decompose_sweep(mesh, config, cache_dir=tmp_path / "s", workers=1)
+    parallel = decompose_sweep(mesh, config, cache_dir=tmp_path / "p", workers=2)
+    assert [p.threshold for p in serial] == [p.threshold for p in parallel]
+    assert all(a.same_as(b) for a, b in zip(serial, parallel))

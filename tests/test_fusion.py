@@ -1,0 +1,90 @@
+"""GeoFusion and GeoSpreading against hand-computed values on a tiny two-part mesh with known decompositions.
+
+Faces 0, 1 form ground-truth part 0 and faces 2, 3 part 1; face areas 1, 1, 2, 2. The finest decomposition
+(threshold 0.01) splits the two parts, the coarse one (0.2) is one piece.
+"""
+
+import numpy as np
+import pytest
+
+from seggrasp.decompose import Partition
+from seggrasp.fusion import REFINE_MODES, refine_scores
+from seggrasp.vote import labels_from_scores
+
+AREAS = np.array([1.0, 1.0, 2.0, 2.0])
+PARTITIONS = [Partition(0.01, np.array([0, 0, 1, 1])), Partition(0.2, np.array([0, 0, 0, 0]))]
+# Coarse votes: face 1 and face 3 are wrong (argmax 1 and 0).
+SCORES = np.array([[2.0, 0.0], [0.0, 1.0], [1.0, 3.0], [1.0, 0.0]])
+# Area-weighted part means: finest part 0 [1, 0.5], part 1 [1, 1.5]; coarse part [1, 7/6].
+FINE_MEANS = np.array([[1.0, 0.5], [1.0, 1.5]])
+COARSE_MEAN = np.array([1.0, 7.0 / 6.0])
+
+
+def test_none_returns_the_coarse_scores():
+    np.testing.assert_array_equal(refine_scores(SCORES, PARTITIONS, AREAS, "none"), SCORES)
+    np.testing.assert_array_equal(labels_from_scores(SCORES), [0, 1, 1, 0])
+
+
+def test_multi_fusion_literal_reading():
+    # S_rev = area-weighted mean / l: finest parts have l = 2, the coarse part l = 4.
+    expected = SCORES + FINE_MEANS[[0, 0, 1, 1]] / 2 + COARSE_MEAN / 4
+    fused = refine_scores(SCORES, PARTITIONS, AREAS, "multi", normalisation="literal")
+    np.testing.assert_allclose(fused, expected)
+    np.testing.assert_allclose(fused[1], [0.75, 1.0 + 0.25 + 7 / 24])
+    np.testing.assert_array_equal(labels_from_scores(fused), [0, 1, 1, 0])  # too weak to repair anything
+
+
+def test_multi_fusion_area_mean_and_partition_mean():
+    area_mean = refine_scores(SCORES, PARTITIONS, AREAS, "multi", normalisation="area_mean")
+    np.testing.assert_allclose(area_mean, SCORES + FINE_MEANS[[0, 0, 1, 1]] + COARSE_MEAN)
+    shipped = refine_scores(SCORES, PARTITIONS, AREAS, "multi", normalisation="partition_mean")
+    expected = SCORES + (FINE_MEANS[[0, 0, 1, 1]] + COARSE_MEAN) / 2
+    np.testing.assert_allclose(shipped, expected)
+    np.testing.assert_allclose(shipped[3], [2.0, 0.75 + 7 / 12])
+    np.testing.assert_array_equal(labels_from_scores(shipped), [0, 1, 1, 0])
+
+
+def test_fine_grained_optimisation_gives_one_label_per_finest_part():
+    opt = refine_scores(SCORES, PARTITIONS, AREAS, "opt")
+    np.testing.assert_allclose(opt, FINE_MEANS[[0, 0, 1, 1]])
+    np.testing.assert_array_equal(labels_from_scores(opt), [0, 0, 1, 1])
+
+
+def test_full_geofusion_hand_computed():
+    s_hat = SCORES + (FINE_MEANS[[0, 0, 1, 1]] + COARSE_MEAN) / 2
+    # Rows of s_hat: [3, 5/6], [1, 11/6], [2, 13/3], [2, 4/3]; area-weighted means per finest part:
+    np.testing.assert_allclose(s_hat, [[3.0, 5 / 6], [1.0, 11 / 6], [2.0, 13 / 3], [2.0, 4 / 3]])
+    expected = np.array([[2.0, 4 / 3], [2.0, 4 / 3], [2.0, 17 / 6], [2.0, 17 / 6]])
+    full = refine_scores(SCORES, PARTITIONS, AREAS, "full")
+    np.testing.assert_allclose(full, expected)
+    np.testing.assert_array_equal(labels_from_scores(full), [0, 0, 1, 1])
+
+
+def test_geo_spreading_hand_computed():
+    scores = np.array([[2.0, 0.0], [0.0, 1.0], [0.0, 3.0], [0.0, 0.0]])  # coarse labels 0, 1, 1, unknown
+    # finest part 0: label area fractions [1/2, 1/2]; part 1: [0, 2/4] (face 3 is unknown);
+    # coarse part: label 0 area 1, label 1 area 3, of 6 -> [1/6, 1/2].
+    expected = np.array([[0.5 + 1 / 6, 1.0], [0.5 + 1 / 6, 1.0], [1 / 6, 1.0], [1 / 6, 1.0]])
+    spread = refine_scores(scores, PARTITIONS, AREAS, "spread")
+    np.testing.assert_allclose(spread, expected)
+    np.testing.assert_array_equal(labels_from_scores(spread), [1, 1, 1, 1])
+
+
+def test_finest_partition_is_found_whatever_the_order_and_zero_parts_stay_unknown():
+    scores = np.array([[0.0, 0.0], [0.0, 0.0], [1.0, 3.0], [1.0, 0.0]])
+    opt = refine_scores(scores, PARTITIONS[::-1], AREAS, "opt")
+    np.testing.assert_array_equal(labels_from_scores(opt), [-1, -1, 1, 1])
+
+
+def test_bad_inputs_raise():
+    with pytest.raises(ValueError, match="mode"):
+        refine_scores(SCORES, PARTITIONS, AREAS, "best")
+    with pytest.raises(ValueError, match="normalisation"):
+        refine_scores(SCORES, PARTITIONS, AREAS, "multi", normalisation="softmax")
+    with pytest.raises(ValueError, match="faces"):
+        refine_scores(SCORES, [Partition(0.01, np.array([0, 1]))], AREAS, "full")
+    with pytest.raises(ValueError, match="face_areas"):
+        refine_scores(SCORES, PARTITIONS, AREAS[:3], "full")
+    for mode in REFINE_MODES[1:]:
+        with pytest.raises(ValueError, match="decomposition"):
+            refine_scores(SCORES, [], AREAS, mode)
