@@ -104,6 +104,7 @@ class TrialRecord:
     prompt_index: int
     rank: int
     seed: int
+    scene_seed: int
     n_candidates: int
     executed: bool
     grasp_score: float | None = None
@@ -294,12 +295,14 @@ def plan_trials(
     slots = []
     for k in targets:
         chosen = per_prompt[k].transformed(observation.T_world_obj)
-        # a method with a single grasp per part (shapegrasp) executes it in every slot, like repeated trials
         for rank in range(top_k):
-            if len(chosen) == 0:
-                slots.append((k, rank, None, 0))
-            else:
+            if plan.own_grasps is not None and len(chosen):
+                # shapegrasp plans one grasp per part: every slot executes it again, as repeated trials
                 slots.append((k, rank, chosen.subset([rank % len(chosen)]), len(chosen)))
+            elif rank < len(chosen):
+                slots.append((k, rank, chosen.subset([rank]), len(chosen)))
+            else:  # fewer grasps on the part than slots: the missing ones count as failures
+                slots.append((k, rank, None, len(chosen)))
     return slots
 
 
@@ -316,7 +319,8 @@ def execute_slot(
     k, rank, grasp, n_candidates = slot
     record = TrialRecord(
         object_id=context.object_id, category=context.category, method=plan.method, detector=plan.detector,
-        prompt=context.prompts[k], prompt_index=k, rank=rank, seed=seed, n_candidates=n_candidates, executed=False,
+        prompt=context.prompts[k], prompt_index=k, rank=rank, seed=seed, scene_seed=context.scene_seed,
+        n_candidates=n_candidates, executed=False,
     )
     if grasp is None:
         record.contacts_on_part = False if context.gt_labels is not None else None
