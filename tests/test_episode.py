@@ -123,3 +123,11 @@ def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
     segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], DetectorSpec(), coarse_scores=fake_votes)
     plan = segmenter.plan("coarse", np.eye(4))
     assert np.all(plan.labels == 1)
+
+
+def test_perceived_episode_plans_on_the_camera_mesh(cell, cylinder) -> None:
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    records = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, perceive=True,
+                          workspace=cell.workspace)
+    assert all(r.executed for r in records)
+    assert any(r.success for r in records)  # labels transferred from the twin to the fused mesh select the side
