@@ -5,10 +5,12 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
 `execute(T_world_grasp, width)` runs the grasp-and-lift primitive:
 
 1. plan: pre-grasp (10 cm back along the approach axis z), grasp, and lift (20 cm up) poses; for the arm every
-   waypoint must pass the IK reachability check, and no configuration on the way (free-space path to the
-   pre-grasp, approach, lift) may bring the robot closer to the table than `table_clearance`;
-2. move to the pre-grasp through free space (kinematically: the path is checked, nothing is touched) with the
-   gripper opened to width + margin, approach in a straight line, close until the finger stalls, lift, hold 1 s;
+   waypoint must pass the IK reachability check, no configuration on the way (free-space path to the pre-grasp,
+   approach, lift) may bring the robot closer to the table than `table_clearance`, and the free-space path may
+   not touch the object; otherwise the grasp is `reachable=False` and nothing moves;
+2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
+   speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
+   finger stalls, lift, hold 1 s;
 3. report: lifted (raised >= 18 cm with both pads still touching it), lift height, the mesh faces the pads
    touched (contact points in the object frame -> nearest face), and the pads' normal force while holding.
 """
@@ -252,25 +254,24 @@ class GraspPrimitive:
         candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
         if not candidates:
             return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=f"unreachable: {reason}")
-        paths, start = None, self.robot.configuration()
+        plan, start, reasons = None, self.robot.configuration(), []
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
-                reason = self.table_clearance_violation(transit + candidate[1] + candidate[2], opening)
+                reason = self.collision_on_path(transit, candidate[1] + candidate[2], opening)
                 if not reason:
-                    paths = candidate
+                    plan = (transit, candidate)
                     break
-            if paths is not None:
+                reasons.append(reason)
+            if plan is not None:
                 break
-        if paths is None:
-            self.robot.place(start)  # the checks posed the robot kinematically: put it back
+        self.robot.place(start)  # the checks posed the robot kinematically: put it back
+        if plan is None:
             self.gripper.set_width(self.gripper.max_width)
-            return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=reason)
-        self.robot.place(paths[0][0])
+            message = reasons[0] + (f" (and {len(reasons) - 1} other paths collide)" if len(reasons) > 1 else "")
+            return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=message)
+        transit, paths = plan
         self.gripper.set_width(opening)
-        if self._penetrates_object():
-            return GraspOutcome(
-                reachable=True, lifted=False, lift_height=0.0, message="the gripper collides with the object at pre-grasp"
-            )
+        self.robot.move_free(transit)
 
         z_start = self.world.body_pose(self.object_body)[2, 3]
         self.robot.follow(paths[1], s.approach_speed)
@@ -295,22 +296,25 @@ class GraspPrimitive:
             touched_faces=faces, contact_force=float(np.mean(forces)), message=message,
         )
 
-    def table_clearance_violation(self, configs: list, opening: float) -> str:
-        """'' if no configuration brings the robot within `table_clearance` of the table, else the reason."""
+    def collision_on_path(self, transit: list, near_object: list, opening: float) -> str:
+        """'' if the robot (gripper opened to `opening`) keeps `table_clearance` from the table on every
+        configuration and does not touch the object on the free-space `transit` (the `near_object` part -
+        approach and lift - may touch it); else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()
         links = set(links)
         self.gripper.set_width(opening)
+        configs = transit + near_object
         for index, config in enumerate(configs):
             self.robot.place(config)
             for point in client.getClosestPoints(body, self.world.table_id, self.settings.table_clearance):
                 if point[3] in links:
                     name = client.getJointInfo(body, point[3])[12].decode() if point[3] >= 0 else "base"
                     return f"robot would touch the table ({name} at waypoint {index + 1} of {len(configs)})"
+            if index < len(transit) and client.getClosestPoints(body, self.object_body, 0.0):
+                where = "at the pre-grasp" if index == len(transit) - 1 else f"at transit waypoint {index + 1}"
+                return f"robot would hit the object {where}"
         return ""
-
-    def _penetrates_object(self) -> bool:
-        return bool(self.world.client.getClosestPoints(self.robot.body, self.object_body, -0.001))
 
     def _pad_contacts(self) -> list[tuple[int, np.ndarray]]:
         """(pad link, contact point in the object frame) for every pad-object contact."""

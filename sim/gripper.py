@@ -193,7 +193,7 @@ class FloatingGripper:
     """A 2F-85 with no arm: its base is dragged by a fixed constraint (as in VGN), for fast sweeps.
 
     Exposes the same motion interface as the arm (`reset_home`, `configuration`, `plan`,
-    `free_space_paths`, `place`,
+    `free_space_paths`, `move_free`, `place`,
     `follow`, `hold`, `table_check_links`, `gripper`).
     """
 
@@ -243,6 +243,10 @@ class FloatingGripper:
     def free_space_paths(self, T_world_start: np.ndarray, T_world_target: np.ndarray) -> list[list[np.ndarray]]:
         """Poses to check on the way to a free-space target: the floating gripper is placed there directly."""
         return [[T_world_target]]
+
+    def move_free(self, path: list[np.ndarray], on_step=None) -> None:
+        """Free-space move of a floating gripper: placed at the end of the (checked) path, as in VGN."""
+        self._teleport(path[-1])
 
     def place(self, T_world_base: np.ndarray) -> None:
         """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""

@@ -196,6 +196,20 @@ class UR5Arm:
                 self.world.step()
             q = q_next
 
+    def move_free(self, path: list[np.ndarray], on_step=None) -> None:
+        """Follow a free-space joint path at the joint speed limit (simulated)."""
+        dt = self.world.physics.time_step
+        q = self.q_commanded.copy()
+        for q_next in path:
+            steps = max(1, int(np.ceil(np.abs(q_next - q).max() / self.settings.max_joint_speed / dt)))
+            velocity = (q_next - q) / (steps * dt)
+            for k in range(1, steps + 1):
+                self._command(q + (q_next - q) * k / steps, velocity)
+                if on_step is not None:
+                    on_step()
+                self.world.step()
+            q = q_next
+
     def hold(self, steps: int, on_step=None) -> None:
         self._command(self.q_commanded, np.zeros(6))
         for _ in range(steps):

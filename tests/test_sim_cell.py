@@ -81,6 +81,7 @@ def test_grasp_below_the_table_is_refused(cell):
     cell.reset(seed=5)
     _, T_world_obj = cell.object_mesh()
     T = top_down_grasp(T_world_obj, 0.06)
+    T[1, 3] += 0.15  # beside the box, so only the table is in the way
     T[2, 3] = -0.05
     start = cell.robot.configuration()
     outcome = cell.execute(T, 0.05)
@@ -128,9 +129,9 @@ def test_bad_grasp_input_raises_value_error(cell):
 def test_arm_configuration_through_the_table_is_refused(box):
     with SimCell([box], embodiment="arm", seed=0, image_size=IMAGE) as cell:
         primitive = GraspPrimitive(cell.world, cell.robot, cell.object_body, cell.current_object, cell.grasp_settings)
-        assert primitive.table_clearance_violation([HOME_Q], 0.05) == ""
+        assert primitive.collision_on_path([HOME_Q], [], 0.05) == ""
         elbow_down = np.array([0.0, -0.3, 2.2, -1.571, -1.571, 0.0])  # forearm folded down into the table
-        reason = primitive.table_clearance_violation([HOME_Q, elbow_down], 0.05)
+        reason = primitive.collision_on_path([HOME_Q, elbow_down], [], 0.05)
         assert "table" in reason and "waypoint 2" in reason
 
 
@@ -152,3 +153,13 @@ def test_twin_objects_rest_stably_in_the_cell():
             lowest = (model.mesh.vertices @ T_later[:3, :3].T + T_later[:3, 3])[:, 2].min()
             assert abs(lowest) < 0.005, (model.object_id, lowest)  # resting on the table top
             assert workspace.contains(T_later[:3, 3][None])[0]
+
+
+def test_pre_grasp_inside_the_object_is_refused(tmp_path):
+    tall = primitive_object("box", (0.05, 0.05, 0.25), tmp_path, object_id="tall_box")
+    with SimCell([tall], embodiment="floating", seed=0, image_size=IMAGE) as cell:
+        _, T_world_obj = cell.object_mesh()
+        outcome = cell.execute(top_down_grasp(T_world_obj, 0.05), 0.05)  # pads 10 cm up are still inside the box
+        assert not outcome.reachable and "hit the object at the pre-grasp" in outcome.message
+        _, T_after = cell.object_mesh()
+        np.testing.assert_allclose(T_after, T_world_obj, atol=1e-6)
