@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 #: The object is put back this far above where it was grasped, so a slipped object is not pushed into the table.
 PLACE_CLEARANCE = 0.01
+#: The perception box reaches this far below the table top, so the table plane can be measured.
+PERCEPTION_BELOW_TABLE = 0.02
 
 
 def make_guard(config: CellConfig) -> SafetyGuard:
@@ -105,6 +107,16 @@ class RealCell:
     def workspace_bounds(self) -> np.ndarray:
         """(2, 3) world-frame box [min, max] of the workspace (where perception looks for the object)."""
         return np.stack([self.config.limits.workspace_min, self.config.limits.workspace_max])
+
+    @property
+    def workspace(self):
+        """The workspace as `seggrasp.perception.Workspace` (reaching 2 cm below the table, where perception
+        measures the table plane) for `perceive_object(frames, workspace)`."""
+        from seggrasp.perception import Workspace  # the perception module is only needed by perceiving episodes
+
+        lower = self.config.limits.workspace_min.copy()
+        lower[2] = min(lower[2], self.table_height - PERCEPTION_BELOW_TABLE)
+        return Workspace(tuple(lower), tuple(self.config.limits.workspace_max), self.table_height)
 
     @property
     def table_height(self) -> float:
