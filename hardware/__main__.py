@@ -44,7 +44,7 @@ def _parser() -> argparse.ArgumentParser:
     calibrate.add_argument("--square", type=float, required=True, help="checkerboard square size in metres")
     calibrate.add_argument("--out", type=Path, help="calibration file (default: the config's calibration.file)")
     calibrate.add_argument("--method", default="shah", choices=["shah", "li"])
-    calibrate.add_argument("--dry-run", action="store_true", help="plan and log the motions only")
+    calibrate.add_argument("--dry-run", action="store_true", help="check and log the tour of poses only")
 
     grasp = commands.add_parser("grasp", help="one top-down grasp at a world point")
     grasp.add_argument("config", type=Path)
@@ -98,7 +98,16 @@ def _calibrate(args: argparse.Namespace) -> None:
         out = Path(file) if Path(file).is_absolute() else args.config.parent / file
     if args.serial not in {c.serial for c in config.cameras}:
         raise ValueError(f"camera {args.serial} is not in {args.config}")
-    cell = RealCell.from_config(args.config, dry_run=args.dry_run, require_calibration=False)
+    if args.dry_run:  # check and log the tour only: a camera in front of a robot that does not move sees nothing new
+        cell = RealCell.from_config(args.config, dry_run=True, require_calibration=False, with_cameras=False)
+        try:
+            for pose in poses:
+                cell.arm.move_linear(pose, config.motion.tool_speed, config.motion.tool_acceleration)
+        finally:
+            cell.close()
+        print(f"dry run: all {len(poses)} calibration poses are within the limits; nothing moved")
+        return
+    cell = RealCell.from_config(args.config, require_calibration=False)
     try:
         camera = next(c for c in cell.cameras if c.config.serial == args.serial)
         motion = config.motion

@@ -44,3 +44,16 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--dry-run"]) == 1
     assert "give --out" in capsys.readouterr().err
+
+
+def test_calibration_dry_run_checks_the_tour(tmp_path, capsys):
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [-0.5, -0.1, 0.3], rpy: [3.14159, 0, 0]}\n"
+                                         "  - {xyz: [-0.45, -0.05, 0.28], rpy: [2.8, 0.3, 0.2]}\n")
+    args = ["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses", str(tmp_path / "poses.yaml"),
+            "--square", "0.03", "--out", str(tmp_path / "calibration.yaml"), "--dry-run"]
+    assert main(args) == 0
+    assert "all 2 calibration poses are within the limits" in capsys.readouterr().out
+    assert not (tmp_path / "calibration.yaml").exists()
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [-0.5, -0.1, 0.9], rpy: [3.14159, 0, 0]}\n")
+    assert main(args) == 1
+    assert "outside the workspace" in capsys.readouterr().err
