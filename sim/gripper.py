@@ -44,11 +44,11 @@ PAD_ROLLING_FRICTION = 0.0001
 
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 2.5 N m squeezes with ~30 N,
+    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 3 N m squeezes with 30-40 N total,
     inside the 2F-85's 20-235 N), the followers' servo force, and stall detection."""
 
     closing_speed: float = 1.5
-    closing_torque: float = 2.5
+    closing_torque: float = 3.0
     stall_travel: float = 0.004  # rad over `stall_steps` steps: the finger has stalled
     stall_steps: int = 8
     follower_force: float = 50.0

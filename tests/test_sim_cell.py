@@ -163,3 +163,16 @@ def test_pre_grasp_inside_the_object_is_refused(tmp_path):
         assert not outcome.reachable and "hit the object at the pre-grasp" in outcome.message
         _, T_after = cell.object_mesh()
         np.testing.assert_allclose(T_after, T_world_obj, atol=1e-6)
+
+
+def test_two_cells_coexist_with_their_own_clients(box):
+    with SimCell([box], embodiment="floating", seed=0, image_size=IMAGE) as first, \
+            SimCell([box], embodiment="floating", seed=0, image_size=IMAGE) as second:
+        assert first.world.client_id != second.world.client_id
+        _, T_first = first.object_mesh()
+        _, T_second = second.object_mesh()
+        np.testing.assert_array_equal(T_first, T_second)
+        assert first.execute(top_down_grasp(T_first, 0.06), 0.05).lifted
+        _, T_second_after = second.object_mesh()
+        np.testing.assert_array_equal(T_second_after, T_second)  # the grasp happened in the other world only
+        assert first.object_mesh()[1][2, 3] > 0.18
