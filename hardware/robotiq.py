@@ -140,7 +140,9 @@ class RobotiqGripper:
             self._socket.sendall((line + "\n").encode("ascii"))
             return self._read_reply()
         except socket.timeout:
-            raise GripperError(f"no reply from the gripper to {line!r} within {self.config.timeout} s") from None
+            self.disconnect()  # a late reply would answer the next request: drop the link to resynchronise
+            raise GripperError(f"no reply from the gripper to {line!r} within {self.config.timeout} s; "
+                               "disconnected (call connect() to retry)") from None
         except OSError as exc:
             self.disconnect()
             raise ConnectionLostError(f"lost the gripper connection during {line!r}: {exc}") from exc

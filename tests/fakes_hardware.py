@@ -202,6 +202,7 @@ class FakeUR:
         self.motion_polls = motion_polls
         self.reach = reach
         self.disconnect_after_polls: int | None = None  # drop the link this many polls into the next motion
+        self.disconnect_raises = True  # a dropped link raises on every call (else: calls return stale values)
         self.protective_stop_after_polls: int | None = None
         self.on_motion: Any = None  # called as on_motion(kind, target) when a motion starts (test hooks)
         self.control_created = 0
@@ -222,7 +223,7 @@ class FakeUR:
         return [c for c in self.commands if c[0] in ("moveL", "moveJ")]
 
     def check_link(self) -> None:
-        if not self.connected:
+        if not self.connected and self.disconnect_raises:
             raise RuntimeError("RTDE: connection to the controller lost")
 
     def progress(self) -> int:
@@ -233,8 +234,10 @@ class FakeUR:
         polls += 1
         if self.disconnect_after_polls is not None and polls >= self.disconnect_after_polls:
             self.connected = False
-            self._pending = None
-            raise RuntimeError("RTDE: connection to the controller lost")
+            if self.disconnect_raises:
+                self._pending = None
+                raise RuntimeError("RTDE: connection to the controller lost")
+            return 0  # the last value received before the link went quiet
         if self.protective_stop_after_polls is not None and polls >= self.protective_stop_after_polls:
             self.protective_stopped = True
             self._finish()

@@ -139,12 +139,16 @@ def test_move_joints_checks_the_tool_path(arm, fake, config):
     assert len(fake.motions) == 1
 
 
-def test_connection_dropped_mid_motion_stops_with_a_clear_error(arm, fake):
+@pytest.mark.parametrize("raises", [True, False], ids=["calls-raise", "reports-disconnected"])
+def test_connection_dropped_mid_motion_stops_with_a_clear_error(arm, fake, raises):
     fake.motion_polls = 10
     fake.disconnect_after_polls = 3
+    fake.disconnect_raises = raises
     with pytest.raises(ConnectionLostError, match="connection"):
         arm.move_linear(pose([-0.5, -0.1, 0.2]), 0.1, 0.5)
     assert not arm.is_connected()
+    if not raises:  # the controller may still hear us: the arm was told to stop
+        assert any(name == "stopL" for name, _ in fake.commands)
     with pytest.raises(ConnectionLostError):
         arm.move_linear(pose([-0.5, -0.1, 0.25]), 0.1, 0.5)
     assert len(fake.motions) == 1  # nothing was sent on the dead link

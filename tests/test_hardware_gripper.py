@@ -139,6 +139,11 @@ def test_no_reply_times_out_with_a_clear_error(cell_config):
         with pytest.raises(GripperError, match="no reply"):
             gripper.is_active()
         assert time.monotonic() - start < 2.0
+        with pytest.raises(ConnectionLostError, match="not connected"):
+            gripper.is_active()
+        server.silent_on = None
+        gripper.connect()
+        assert not gripper.is_active()
 
 
 def test_dropped_connection_is_reported(cell_config):
