@@ -9,6 +9,7 @@ trial covers planning (IK, table checks) and the simulated approach, close, 20 c
 from __future__ import annotations
 
 import argparse
+import io
 import logging
 import tempfile
 import time
@@ -83,8 +84,6 @@ def write_scene_png(path: Path) -> None:
             images = [cell.render(overview)] + [cell.render(camera) for camera in cell.cameras]
     top = images[0]
     bottom = np.concatenate([np.asarray(Image.fromarray(im).resize((320, 240))) for im in images[1:3]], axis=1)
-    import io
-
     buffer = io.BytesIO()
     Image.fromarray(np.concatenate([top, bottom], axis=0)).save(buffer, format="PNG")
     atomic_write_bytes(path, buffer.getvalue())

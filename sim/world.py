@@ -6,9 +6,8 @@ the plane z = `TABLE_TOP_Z` = 0. Objects are placed in a workspace in front of t
 
 from __future__ import annotations
 
-import logging
-from dataclasses import dataclass
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +16,6 @@ from pybullet_utils import bullet_client
 from scipy.spatial.transform import Rotation, Slerp
 
 from seggrasp.objects import ObjectModel
-
-log = logging.getLogger(__name__)
 
 ROBOT_ASSETS = Path(__file__).resolve().parents[1] / "assets" / "robots"
 TABLE_TOP_Z = 0.0
