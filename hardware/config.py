@@ -17,7 +17,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-#: Standard Denavit-Hartenberg parameters published by Universal Robots, used for the joint-path safety check.
+#: Arm models whose nominal kinematics (hardware/ur.py) the joint-path safety check knows.
 UR_MODELS = ("ur5", "ur5e")
 
 
