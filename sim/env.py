@@ -151,8 +151,8 @@ class SegGraspEnv(gym.Env):
         if self.include_mesh:
             mesh, T_world_obj = self.cell.object_mesh()
             observation["mesh"] = {
-                "vertices": np.asarray(mesh.vertices, dtype=np.float64),
-                "faces": np.asarray(mesh.faces, dtype=np.int64),
+                "vertices": np.array(mesh.vertices, dtype=np.float64),  # copies: never hand out the model's arrays
+                "faces": np.array(mesh.faces, dtype=np.int64),
                 "T_world_obj": np.asarray(T_world_obj, dtype=np.float64),
             }
         return observation

@@ -33,8 +33,9 @@ def side_grasp_action(obs) -> np.ndarray:
     return grasp_to_action(T, 0.05)
 
 
-def test_env_checker_passes(objects):
-    env = SegGraspEnv(objects, embodiment="arm", **SMALL)
+@pytest.mark.parametrize("embodiment, include_mesh", [("arm", False), ("floating", True)])
+def test_env_checker_passes(objects, embodiment, include_mesh):
+    env = SegGraspEnv(objects, embodiment=embodiment, include_mesh=include_mesh, render_mode="rgb_array", **SMALL)
     try:
         check_env(env, skip_render_check=False)
     finally:
