@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 
 #: The object is put back this far above where it was grasped, so a slipped object is not pushed into the table.
 PLACE_CLEARANCE = 0.01
+#: A reset retracts straight up first when the gripper is more than this below its home height.
+RETRACT_TOLERANCE = 0.02
 #: The perception box reaches this far below the table top, so the table plane can be measured.
 PERCEPTION_BELOW_TABLE = 0.02
 
@@ -125,10 +127,20 @@ class RealCell:
 
     # -------------------------------------------------------------------------------------------------- Cell API
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
-        """Open the gripper, move home, and ask the operator to place the object (seed: nothing random here)."""
+        """Open the gripper, retract straight up, move home, and ask the operator to place the object.
+
+        The seed is only logged: a person places the object. The straight retract keeps the joint move home away
+        from the table when the last grasp ended low.
+        """
         self._check_open()
         motion = self.config.motion
         self.gripper.open()
+        current = self.arm.tcp_pose()
+        home_height = min(float(self.arm.home_pose()[2, 3]), float(self.config.limits.workspace_max[2]))
+        if current[2, 3] < home_height - RETRACT_TOLERANCE:
+            retract = current.copy()
+            retract[2, 3] = home_height
+            self.arm.move_linear(retract, motion.tool_speed, motion.tool_acceleration)
         self.arm.move_joints(self.config.robot.home_joints, motion.joint_speed, motion.joint_acceleration)
         what = f"object {object_id!r}" if object_id else "the object"
         prompt = (f"Place {what} on the table inside the workspace box "

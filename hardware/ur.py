@@ -200,6 +200,10 @@ class URArm:
         if self._call(self._receive, "isProtectiveStopped"):
             raise RobotStoppedError("the robot is in a protective stop; unlock it on the teach pendant")
 
+    def home_pose(self) -> np.ndarray:
+        """`T_world_gripper` at the home joints (nominal kinematics)."""
+        return self._gripper_pose_at(self.config.home_joints)
+
     def _gripper_pose_at(self, q: np.ndarray) -> np.ndarray:
         return forward_kinematics(self.config.model, q) @ self.config.T_flange_gripper
 

@@ -42,7 +42,7 @@ class Rig:
         self.server = FakeRobotiqServer(object_register=object_register, newline=True)
         path = cell_config_for_fakes(tmp_path / "cell.yaml", self.server.port)
         self.config = load_config(path)
-        self.ur = FakeUR(self.config.robot.model, self.config.robot.home_joints + 0.1)
+        self.ur = FakeUR(self.config.robot.model, self.config.robot.home_joints)
         self.frames = {camera.serial: recorded_frames(camera.serial) for camera in self.config.cameras}
         self.pipelines: dict[str, FakePipeline] = {}
         self.cell = RealCell.from_config(path, dry_run=dry_run, control_factory=self.ur.control,
@@ -118,6 +118,22 @@ def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
     assert sets[-2].startswith("SET POS 255 ")  # closed with the configured force
     assert f"FOR {rig.cell.gripper.force_to_register(rig.config.gripper.force)}" in sets[-2]
     assert sets[-1].startswith(f"SET POS {opening} ")  # released
+
+
+def test_reset_after_a_grasp_retracts_straight_up_before_going_home(rig):
+    rig.cell.reset()
+    rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    before = len(rig.ur.motions)
+    rig.cell.reset()
+    (retract, (pose, *_)), (home, _) = rig.ur.motions[before:]
+    assert (retract, home) == ("moveL", "moveJ")
+    end_of_grasp = matrix_from_ur_pose(rig.ur.motions[before - 1][1][0])
+    up = matrix_from_ur_pose(pose)
+    np.testing.assert_allclose(up[:3, :3], end_of_grasp[:3, :3], atol=1e-9)
+    np.testing.assert_allclose(up[:2, 3], end_of_grasp[:2, 3], atol=1e-9)
+    assert up[2, 3] == pytest.approx(rig.cell.arm.home_pose()[2, 3])
+    rig.cell.reset()  # already home: no retract
+    assert [name for name, _ in rig.ur.motions[before + 2:]] == ["moveJ"]
 
 
 def test_object_slipping_during_the_lift_is_not_lifted(rig):

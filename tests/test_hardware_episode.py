@@ -80,8 +80,10 @@ def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
             cell.close()
 
     assert len(records) == 2
-    grasp_poses = [matrix_from_ur_pose(args[0]) for name, args in ur.motions if name == "moveL"][1::5]
-    assert len(grasp_poses) == 2
+    # each trial: reset (retract if low, home), then pre-grasp, grasp, lift, put back, back off
+    names = [name for name, _ in ur.motions]
+    assert names == ["moveJ"] + ["moveJ"] + ["moveL"] * 5 + ["moveL", "moveJ"] + ["moveL"] * 5
+    grasp_poses = [matrix_from_ur_pose(ur.motions[i][1][0]) for i in (3, 10)]
     for record, commanded in zip(records, grasp_poses):
         assert record.executed and record.reachable and record.lifted, record.message
         assert record.lift_height == pytest.approx(0.2) and record.outcome["contacts_observed"] is False
@@ -92,5 +94,3 @@ def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
         assert np.linalg.norm(axis_offset) < 0.015
         assert 0.0 < commanded[2, 3] < HEIGHT  # between the table (z = 0) and the cylinder's top
         assert 0.04 < record.width < 2 * RADIUS + 0.005  # a chord across the perceived cylinder
-    # each trial: reset (home), pre-grasp, grasp, lift, put back, back off
-    assert [name for name, _ in ur.motions] == ["moveJ"] + (["moveJ"] + ["moveL"] * 5) * 2
