@@ -51,9 +51,10 @@ MAX_JOINT_JUMP = 0.25
 
 @dataclass(frozen=True)
 class ArmSettings:
-    """Joint speed limit (rad/s) for all motions; straight-line speeds are capped so no joint exceeds it."""
+    """Joint speed limit (rad/s) for all motions (the UR5 allows 3.15); straight lines are slowed where a joint
+    would exceed it."""
 
-    max_joint_speed: float = 1.5
+    max_joint_speed: float = 3.0
 
 
 def dh_forward(q: np.ndarray) -> np.ndarray:
