@@ -6,7 +6,10 @@ the plane z = `TABLE_TOP_Z` = 0. Objects are placed in a workspace in front of t
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import os
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,6 +55,20 @@ def pb_to_pose(position, quaternion) -> np.ndarray:
     return T
 
 
+@contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Silence the process's stdout file descriptor (C-level prints included) for the duration."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
+
+
 def linear_poses(T_start: np.ndarray, T_end: np.ndarray, resolution: float) -> list[np.ndarray]:
     """Poses on the straight line from `T_start` to `T_end` (both included), at most `resolution` m apart;
     the orientation is interpolated by slerp."""
@@ -74,7 +91,8 @@ class World:
     def __init__(self, gui: bool = False, physics: PhysicsSettings | None = None) -> None:
         self.physics = physics or PhysicsSettings()
         self.gui = gui
-        self.client = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
+        with _quiet_stdout():  # PyBullet's connect prints "argv[0]=" on the C-level stdout
+            self.client = bullet_client.BulletClient(connection_mode=pybullet.GUI if gui else pybullet.DIRECT)
         self.table_id = -1
         self.pre_step_hooks: list[Callable[[], None]] = []
         self.step_count = 0
@@ -97,6 +115,10 @@ class World:
         )
         if self.gui:
             c.configureDebugVisualizer(pybullet.COV_ENABLE_GUI, 0)
+            c.resetDebugVisualizerCamera(
+                cameraDistance=1.4, cameraYaw=50.0, cameraPitch=-35.0,
+                cameraTargetPosition=[WORKSPACE_CENTER[0] - 0.15, WORKSPACE_CENTER[1], TABLE_TOP_Z + 0.15],
+            )
         half = [TABLE_SIZE[0] / 2, TABLE_SIZE[1] / 2, TABLE_SIZE[2] / 2]
         shape = c.createCollisionShape(pybullet.GEOM_BOX, halfExtents=half)
         visual = c.createVisualShape(pybullet.GEOM_BOX, halfExtents=half, rgbaColor=[0.62, 0.5, 0.38, 1.0])
