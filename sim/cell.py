@@ -121,19 +121,15 @@ class SimCell:
         self.world = World(gui=gui, physics=physics)
         self.current_object: ObjectModel | None = None
         self.object_body = -1
-        self._start_T_world_obj: np.ndarray | None = None
+        self._seed = -1  # reset(None) takes the next seed
         self.reset(seed)
 
     # --- Cell interface ---------------------------------------------------------------------------------------
 
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
-        """Rebuild the scene: robot at home, the chosen (or a seeded random) object at a seeded pose, settled."""
-        if seed is not None:
-            self._seed = int(seed)
-        elif not hasattr(self, "_seed"):
-            self._seed = 0
-        else:
-            self._seed += 1
+        """Rebuild the scene: robot at home, the chosen (or a seeded random) object at a seeded pose, settled.
+        `seed=None` takes the previous seed + 1."""
+        self._seed = int(seed) if seed is not None else self._seed + 1
         rng = np.random.default_rng(self._seed)
         if object_id is not None:
             if object_id not in self._by_id:
@@ -150,7 +146,6 @@ class SimCell:
         self.current_object = model
         self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
         self._settle()
-        self._start_T_world_obj = self.world.body_pose(self.object_body)
         self._camera_rng = np.random.default_rng([self._seed, 1])
 
     def _drop_pose(self, model: ObjectModel, rng: np.random.Generator) -> np.ndarray:
