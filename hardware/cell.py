@@ -111,6 +111,11 @@ class RealCell:
         return np.stack([self.config.limits.workspace_min, self.config.limits.workspace_max])
 
     @property
+    def current_object(self) -> None:
+        """Always None: the real cell does not know which object a person placed (SimCell gives its model)."""
+        return None
+
+    @property
     def workspace(self):
         """The workspace as `seggrasp.perception.Workspace` (reaching 2 cm below the table, where perception
         measures the table plane) for `perceive_object(frames, workspace)`."""

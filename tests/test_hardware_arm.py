@@ -75,7 +75,7 @@ def test_connect_sets_the_tcp_to_the_gripper_frame(arm, fake, config):
 
 
 def test_move_linear_sends_the_ur_pose_asynchronously_and_waits(arm, fake):
-    target = pose([-0.5, -0.1, 0.2], Rotation.from_euler("z", 0.3))
+    target = pose([0.5, 0.1, 0.2], Rotation.from_euler("z", 0.3))
     arm.move_linear(target, 0.1, 0.5)
     name, (vector, speed, acceleration, asynchronous) = fake.motions[-1]
     assert name == "moveL" and asynchronous is True and (speed, acceleration) == (0.1, 0.5)
@@ -85,18 +85,18 @@ def test_move_linear_sends_the_ur_pose_asynchronously_and_waits(arm, fake):
 
 def test_pose_outside_the_workspace_never_reaches_the_arm(arm, fake):
     with pytest.raises(SafetyError, match="outside the workspace"):
-        arm.move_linear(pose([-0.9, -0.1, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.9, 0.1, 0.2]), 0.1, 0.5)
     with pytest.raises(SafetyError, match="z = 0.600 m is outside"):
-        arm.move_linear(pose([-0.5, -0.1, 0.6]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.6]), 0.1, 0.5)
     assert fake.motions == []
 
 
 def test_fingertips_below_the_table_clearance_are_refused(arm, fake, config):
     # the gripper origin is inside the box, but pointing down 1 cm above the table the tips (2 cm beyond) are not
     with pytest.raises(SafetyError, match="fingertip .* below the table clearance"):
-        arm.move_linear(pose([-0.5, -0.1, 0.01]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.01]), 0.1, 0.5)
     # tilted 90 degrees about the approach axis' normal: one finger points at the table
-    tilted = pose([-0.5, -0.1, 0.03], Rotation.from_euler("y", 90, degrees=True))
+    tilted = pose([0.5, 0.1, 0.03], Rotation.from_euler("y", 90, degrees=True))
     with pytest.raises(SafetyError, match="below the table"):
         arm.move_linear(tilted, 0.1, 0.5)
     assert fake.motions == []
@@ -105,7 +105,7 @@ def test_fingertips_below_the_table_clearance_are_refused(arm, fake, config):
 def test_a_path_through_a_forbidden_region_is_refused(arm, fake):
     # both ends keep every fingertip above the table, but halfway through the turn from pointing down to pointing
     # sideways the lower fingertip dips below the clearance limit
-    start = pose([-0.5, -0.1, 0.048])
+    start = pose([0.5, 0.1, 0.048])
     goal = start.copy()
     goal[:3, :3] = Rotation.from_euler("y", 90, degrees=True).as_matrix() @ start[:3, :3]
     arm.guard.check_pose(start)
@@ -116,7 +116,7 @@ def test_a_path_through_a_forbidden_region_is_refused(arm, fake):
 
 
 def test_speed_and_acceleration_caps(arm, fake, config):
-    target = pose([-0.5, -0.1, 0.2])
+    target = pose([0.5, 0.1, 0.2])
     with pytest.raises(SafetyError, match="tool speed 0.5 m/s exceeds the limit 0.25"):
         arm.move_linear(target, 0.5, 0.5)
     with pytest.raises(SafetyError, match="tool acceleration"):
@@ -145,29 +145,29 @@ def test_connection_dropped_mid_motion_stops_with_a_clear_error(arm, fake, raise
     fake.disconnect_after_polls = 3
     fake.disconnect_raises = raises
     with pytest.raises(ConnectionLostError, match="connection"):
-        arm.move_linear(pose([-0.5, -0.1, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
     assert not arm.is_connected()
     if not raises:  # the controller may still hear us: the arm was told to stop
         assert any(name == "stopL" for name, _ in fake.commands)
     with pytest.raises(ConnectionLostError):
-        arm.move_linear(pose([-0.5, -0.1, 0.25]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.25]), 0.1, 0.5)
     assert len(fake.motions) == 1  # nothing was sent on the dead link
     arm.reconnect()
     assert fake.commands[-1][0] == "setTcp"  # the TCP is re-applied after reconnecting
     fake.disconnect_after_polls = None
-    arm.move_linear(pose([-0.5, -0.1, 0.25]), 0.1, 0.5)
-    np.testing.assert_allclose(arm.tcp_pose()[:3, 3], [-0.5, -0.1, 0.25], atol=1e-9)
+    arm.move_linear(pose([0.5, 0.1, 0.25]), 0.1, 0.5)
+    np.testing.assert_allclose(arm.tcp_pose()[:3, 3], [0.5, 0.1, 0.25], atol=1e-9)
 
 
 def test_protective_and_emergency_stops_are_detected(arm, fake):
     fake.motion_polls = 10
     fake.protective_stop_after_polls = 2
     with pytest.raises(RobotStoppedError, match="protective stop"):
-        arm.move_linear(pose([-0.5, -0.1, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
     fake.protective_stopped, fake.protective_stop_after_polls = False, None
     fake.emergency_stopped = True
     with pytest.raises(RobotStoppedError, match="emergency"):
-        arm.move_linear(pose([-0.5, -0.1, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
     assert len(fake.motions) == 1
 
 
@@ -182,18 +182,18 @@ def test_motion_that_ends_away_from_its_target_is_an_error(arm, fake):
 
     fake.progress = lose_the_motion
     with pytest.raises(MotionError, match="away from its target"):
-        arm.move_linear(pose([-0.5, -0.1, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
 
 
 def test_dry_run_never_connects_and_records_the_plan(config, fake):
     arm = URArm(config.robot, make_guard(config), dry_run=True, control_factory=fake.control,
                 receive_factory=fake.receive)
     arm.connect()
-    target = pose([-0.5, -0.1, 0.2])
+    target = pose([0.5, 0.1, 0.2])
     arm.move_linear(target, 0.1, 0.5)
     arm.move_joints(config.robot.home_joints, 0.5, 0.8)
     with pytest.raises(SafetyError):
-        arm.move_linear(pose([-0.9, 0.0, 0.2]), 0.1, 0.5)
+        arm.move_linear(pose([0.9, 0.0, 0.2]), 0.1, 0.5)
     arm.close()
     assert fake.control_created == 0 and fake.receive_created == 0 and fake.commands == []
     assert [m.kind for m in arm.planned_motions] == ["moveL", "moveJ"]

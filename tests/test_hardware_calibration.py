@@ -91,14 +91,14 @@ def test_checkerboard_pose_is_recovered_from_a_rendered_image():
 
 
 def synthetic_samples(n: int, noise: float, rng: np.random.Generator):
-    T_base_cam = look_at(np.array([-0.5, -0.9, 0.7]), [-0.5, -0.1, 0.1])
+    T_base_cam = look_at(np.array([0.5, 0.9, 0.7]), [0.5, 0.1, 0.1])
     T_gripper_target = transform(Rotation.from_euler("xyz", [0.1, -0.2, 0.3]), [0.02, -0.01, 0.05])
     T_gripper_cam = transform(Rotation.from_euler("xyz", [0.05, 0.1, 1.6]), [0.06, 0.0, -0.08])
-    T_base_table_target = transform(Rotation.from_euler("z", 0.4), [-0.5, -0.1, 0.0])
+    T_base_table_target = transform(Rotation.from_euler("z", 0.4), [0.5, 0.1, 0.0])
     grippers, to_hand, in_hand = [], [], []
     for _ in range(n):
         rotation = Rotation.from_euler("x", np.pi) * Rotation.from_rotvec(rng.normal(size=3) * 0.35)
-        T_bg = transform(rotation, [-0.5, -0.1, 0.3] + rng.uniform(-0.12, 0.12, 3))
+        T_bg = transform(rotation, [0.5, 0.1, 0.3] + rng.uniform(-0.12, 0.12, 3))
         noisy = transform(Rotation.from_rotvec(rng.normal(size=3) * noise), rng.normal(size=3) * noise)
         grippers.append(T_bg)
         to_hand.append(np.linalg.inv(T_base_cam) @ T_bg @ T_gripper_target @ noisy)
@@ -140,7 +140,7 @@ def test_bad_calibration_input_is_rejected():
 
 
 def test_extrinsics_file_round_trips_and_feeds_the_config(tmp_path):
-    T = look_at(np.array([-0.5, -0.9, 0.7]), [-0.5, -0.1, 0.1])
+    T = look_at(np.array([0.5, 0.9, 0.7]), [0.5, 0.1, 0.1])
     path = tmp_path / "calibration.yaml"
     save_extrinsics(path, {"012345678901": T, "012345678902": np.eye(4)}, {"method": "shah", "residual_m": 0.001})
     loaded = load_extrinsics(path)
@@ -174,7 +174,7 @@ def test_eye_to_hand_routine_end_to_end_with_rendered_images():
     config = load_config(EXAMPLE_CONFIG)
     arm = URArm(config.robot, make_guard(config), dry_run=True)
     arm.connect()
-    T_base_cam = look_at(np.array([-0.45, -0.75, 0.75]), [-0.5, -0.1, 0.25])
+    T_base_cam = look_at(np.array([0.45, 0.75, 0.75]), [0.5, 0.1, 0.25])
     # the board hangs below the fingertips, facing up toward the camera
     T_gripper_target = transform(Rotation.from_euler("x", np.pi), [-0.09, 0.06, 0.06])
     rng = np.random.default_rng(4)
@@ -182,7 +182,7 @@ def test_eye_to_hand_routine_end_to_end_with_rendered_images():
     for _ in range(10):
         rotation = Rotation.from_euler("x", np.pi) * Rotation.from_euler("xyz", rng.uniform(-20, 20, 3),
                                                                           degrees=True)
-        poses.append(transform(rotation, [-0.5, -0.1, 0.3] + rng.uniform([-0.08, -0.08, -0.05],
+        poses.append(transform(rotation, [0.5, 0.1, 0.3] + rng.uniform([-0.08, -0.08, -0.05],
                                                                           [0.08, 0.08, 0.08])))
     camera = RenderedCamera(arm, T_base_cam, T_gripper_target)
     grippers, boards = collect_samples(arm, camera, poses, BOARD, speed=0.1, acceleration=0.5)

@@ -68,7 +68,7 @@ def test_frames_from_the_simulated_cameras_survive_the_realsense_path(config, si
 def test_depth_scale_and_intrinsics_come_from_the_device(config):
     K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
     T_world_cam = config.cameras[0].T_world_cam
-    scene = box_on_table((-0.52, -0.1), (0.06, 0.05, 0.1))
+    scene = box_on_table((0.52, 0.1), (0.06, 0.05, 0.1))
     frames = synthetic_frames(scene, [T_world_cam], K, (120, 160))
     camera, _, _ = replay(config.cameras[0], frames, depth_scale=0.0001)
     assert camera.depth_scale == pytest.approx(0.0001)
@@ -80,7 +80,7 @@ def test_depth_scale_and_intrinsics_come_from_the_device(config):
     rays = np.linalg.inv(K) @ np.stack([u, v, np.ones_like(u)])
     points = (T_world_cam[:3, :3] @ (rays * frame.depth[v, u]) + T_world_cam[:3, 3:4]).T
     assert points[:, 2].max() == pytest.approx(0.1, abs=0.002)
-    assert np.abs(points[:, :2].mean(axis=0) - [-0.52, -0.1]).max() < 0.03
+    assert np.abs(points[:, :2].mean(axis=0) - [0.52, 0.1]).max() < 0.03
 
 
 def test_intrinsics_to_K():

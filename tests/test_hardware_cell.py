@@ -15,7 +15,7 @@ from hardware.config import load_config
 from hardware.ur import matrix_from_ur_pose
 from seggrasp.cell import Cell
 
-BOX_XY, BOX_SIZE = (-0.52, -0.1), (0.06, 0.05, 0.10)
+BOX_XY, BOX_SIZE = (0.52, 0.1), (0.06, 0.05, 0.10)
 K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
 
 
@@ -102,7 +102,7 @@ def test_object_mesh_points_to_perception(rig):
 
 def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
     rig.cell.reset()
-    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert outcome.reachable and outcome.lifted
     assert outcome.lift_height == pytest.approx(0.2)
     assert outcome.contacts_observed is False and len(outcome.touched_faces) == 0
@@ -122,7 +122,7 @@ def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
 
 def test_reset_after_a_grasp_retracts_straight_up_before_going_home(rig):
     rig.cell.reset()
-    rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     before = len(rig.ur.motions)
     rig.cell.reset()
     (retract, (pose, *_)), (home, _) = rig.ur.motions[before:]
@@ -139,7 +139,7 @@ def test_reset_after_a_grasp_retracts_straight_up_before_going_home(rig):
 def test_object_slipping_during_the_lift_is_not_lifted(rig):
     rig.cell.reset()
     rig.ur.on_motion = lambda kind, target: rig.server.slip() if target[2] > 0.2 else None
-    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert outcome.reachable and not outcome.lifted and outcome.lift_height == 0.0
     assert "not held" in outcome.message
     assert rig.heights() == [0.15, 0.05, 0.25]  # nothing to put back
@@ -149,17 +149,17 @@ def test_empty_grasp_is_not_lifted(tmp_path):
     rig = Rig(tmp_path, object_register=None)
     try:
         rig.cell.reset()
-        outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+        outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
         assert outcome.reachable and not outcome.lifted and "closed on an object: False" in outcome.message
     finally:
         rig.close()
 
 
 @pytest.mark.parametrize("grasp, width, reason", [
-    (top_down([-0.9, -0.1, 0.05]), 0.05, "outside the workspace"),
-    (top_down([-0.52, -0.1, 0.40]), 0.05, "lift"),  # lifting 20 cm would leave the box
-    (top_down([-0.52, -0.1, 0.01]), 0.05, "below the table"),
-    (top_down([-0.52, -0.1, 0.05]), 0.09, "exceeds the gripper stroke"),
+    (top_down([0.9, 0.1, 0.05]), 0.05, "outside the workspace"),
+    (top_down([0.52, 0.1, 0.40]), 0.05, "lift"),  # lifting 20 cm would leave the box
+    (top_down([0.52, 0.1, 0.01]), 0.05, "below the table"),
+    (top_down([0.52, 0.1, 0.05]), 0.09, "exceeds the gripper stroke"),
 ])
 def test_refused_grasps_send_no_motion(rig, grasp, width, reason):
     rig.cell.reset()
@@ -174,7 +174,7 @@ def test_grasp_without_inverse_kinematics_is_unreachable(rig):
     rig.cell.reset()
     rig.ur.reach = 0.3
     motions = len(rig.ur.motions)
-    outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+    outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert not outcome.reachable and "inverse-kinematics" in outcome.message
     assert len(rig.ur.motions) == motions
 
@@ -189,7 +189,7 @@ def test_connection_lost_while_lifting_stops_with_a_clear_error(rig):
 
     rig.ur.on_motion = drop_on_lift
     with pytest.raises(ConnectionLostError, match="grasp aborted while lifting"):
-        rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+        rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert rig.heights()[-1] == 0.25
 
 
@@ -197,7 +197,7 @@ def test_gripper_connection_lost_while_closing(rig):
     rig.cell.reset()
     rig.server.drop_on = "SET POS 255"
     with pytest.raises(ConnectionLostError, match="grasp aborted while closing the gripper"):
-        rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+        rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert rig.heights() == [0.15, 0.05]  # never lifted
 
 
@@ -206,7 +206,7 @@ def test_dry_run_moves_nothing(tmp_path, caplog):
     try:
         with caplog.at_level(logging.INFO):
             rig.cell.reset()
-            outcome = rig.cell.execute(top_down([-0.52, -0.1, 0.05]), 0.05)
+            outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
         assert outcome.reachable and not outcome.lifted and "dry run" in outcome.message
         assert rig.ur.control_created == 0 and rig.ur.receive_created == 0 and rig.ur.commands == []
         assert rig.server.connections == 0 and rig.server.lines == []
@@ -216,7 +216,7 @@ def test_dry_run_moves_nothing(tmp_path, caplog):
                            ("moveL", 0.16)]
         assert caplog.text.count("[dry run] moveL") == 5
         assert len(rig.cell.capture()) == 2  # cameras move nothing and still work
-        refused = rig.cell.execute(top_down([-0.9, -0.1, 0.05]), 0.05)
+        refused = rig.cell.execute(top_down([0.9, 0.1, 0.05]), 0.05)
         assert not refused.reachable
     finally:
         rig.close()
@@ -231,3 +231,31 @@ def test_close_shuts_everything_down_once(rig):
     assert [name for name, _ in rig.ur.commands] == names
     with pytest.raises(ConnectionLostError, match="closed"):
         rig.cell.capture()
+
+
+def test_gym_env_drives_the_real_cell(tmp_path):
+    import gymnasium as gym
+
+    from sim.env import register_envs
+
+    register_envs()
+    server = FakeRobotiqServer(object_register=150, newline=True)
+    path = cell_config_for_fakes(tmp_path / "cell.yaml", server.port)
+    config = load_config(path)
+    ur = FakeUR(config.robot.model, config.robot.home_joints)
+    env = gym.make("SegGrasp-v0", backend="real", config=str(path), control_factory=ur.control,
+                   receive_factory=ur.receive, align_factory=FakeAlign, camera_warmup_frames=0,
+                   pipeline_factory=lambda serial: FakePipeline(recorded_frames(serial)))
+    try:
+        observation, info = env.reset(seed=0, options={"prompt": "body"})
+        assert info == {"object_id": None, "prompt": "body"}
+        assert set(observation) == {"prompt", "front", "side"}
+        np.testing.assert_allclose(observation["front"]["T_world_cam"], config.cameras[0].T_world_cam)
+        action = np.array([0.52, 0.1, 0.05, np.pi, 0.0, 0.0, 0.05], dtype=np.float32)
+        _, reward, terminated, _, info = env.step(action)
+        assert terminated and reward == 1.0 and info["outcome"]["lifted"] and info["on_part"] is None
+        assert len([name for name, _ in ur.motions if name == "moveL"]) == 5
+    finally:
+        env.close()
+        server.stop()
+    assert any(name == "stopScript" for name, _ in ur.commands)

@@ -15,14 +15,14 @@ def test_check_prints_a_summary(capsys):
 
 
 def test_dry_run_grasp_prints_the_outcome_and_moves_nothing(capsys):
-    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "-0.52", "-0.1", "0.05", "--width", "0.05",
+    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "0.52", "0.1", "0.05", "--width", "0.05",
                  "--dry-run"]) == 0
     outcome = json.loads(capsys.readouterr().out)
     assert outcome["reachable"] is True and outcome["lifted"] is False and "dry run" in outcome["message"]
 
 
 def test_refused_grasp_is_reported_not_raised(capsys):
-    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "-0.9", "-0.1", "0.05", "--width", "0.05",
+    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "0.9", "0.1", "0.05", "--width", "0.05",
                  "--dry-run"]) == 0
     outcome = json.loads(capsys.readouterr().out)
     assert outcome["reachable"] is False and "outside the workspace" in outcome["message"]
@@ -37,7 +37,7 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--dry-run"]) == 1
     assert "expected 'poses:'" in capsys.readouterr().err
-    (tmp_path / "poses.yaml").write_text("poses: [{xyz: [-0.5, -0.1, 0.3], rpy: [3.14159, 0, 0]}]\n")
+    (tmp_path / "poses.yaml").write_text("poses: [{xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}]\n")
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--board", "7x5", "--dry-run"]) == 1
     assert "ambiguous" in capsys.readouterr().err
@@ -47,13 +47,13 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
 
 
 def test_calibration_dry_run_checks_the_tour(tmp_path, capsys):
-    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [-0.5, -0.1, 0.3], rpy: [3.14159, 0, 0]}\n"
-                                         "  - {xyz: [-0.45, -0.05, 0.28], rpy: [2.8, 0.3, 0.2]}\n")
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\n"
+                                         "  - {xyz: [0.45, 0.05, 0.28], rpy: [2.8, 0.3, 0.2]}\n")
     args = ["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses", str(tmp_path / "poses.yaml"),
             "--square", "0.03", "--out", str(tmp_path / "calibration.yaml"), "--dry-run"]
     assert main(args) == 0
     assert "all 2 calibration poses are within the limits" in capsys.readouterr().out
     assert not (tmp_path / "calibration.yaml").exists()
-    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [-0.5, -0.1, 0.9], rpy: [3.14159, 0, 0]}\n")
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [0.5, 0.1, 0.9], rpy: [3.14159, 0, 0]}\n")
     assert main(args) == 1
     assert "outside the workspace" in capsys.readouterr().err

@@ -18,7 +18,7 @@ def test_the_example_config_loads_with_its_values():
     assert config.gripper.host == config.robot.ip and config.gripper.port == 63352
     assert [c.serial for c in config.cameras] == ["012345678901", "012345678902"]
     assert config.cameras[0].T_world_cam.shape == (4, 4)
-    np.testing.assert_allclose(config.limits.workspace_min, [-0.75, -0.40, 0.0])
+    np.testing.assert_allclose(config.limits.workspace_min, [0.25, -0.30, 0.0])
     assert config.motion.lift_height == pytest.approx(0.2) and config.motion.hold_time == pytest.approx(1.0)
     assert config.interactive is False
 
@@ -49,7 +49,7 @@ def mutate(tmp_path, change) -> ConfigError:
     (lambda d: d["limits"].update(max_tool_speed="fast"), "limits.max_tool_speed", "finite number"),
     (lambda d: d["limits"].update(max_tool_speed=2.0), "limits.max_tool_speed", "above the 1 m/s"),
     (lambda d: d["motion"].update(tool_speed=0.5), "motion.tool_speed", "exceeds limits.max_tool_speed"),
-    (lambda d: d["workspace"].update(max=[-0.8, 0.2, 0.55]), "workspace.max", "must exceed workspace.min"),
+    (lambda d: d["workspace"].update(max=[0.2, 0.3, 0.55]), "workspace.max", "must exceed workspace.min"),
     (lambda d: d["table"].update(height=1.0), "table.height", "inside the workspace"),
     (lambda d: d.update(cameras=[]), "cameras", "non-empty list"),
     (lambda d: d["cameras"].append({"serial": "999"}), "cameras[2].serial", "no T_world_cam for camera 999"),
