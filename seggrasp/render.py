@@ -1,4 +1,4 @@
-"""Camera rig and offscreen rendering: a shaded RGB image for the detector and an exact face-id buffer per view.
+"""Camera rig and offscreen rendering: an exact face-id buffer and a shaded RGB image for the detector per view.
 
 Rig. The mesh is first mapped into the unit sphere (`seggrasp.mesh.unit_normalisation`). Cameras sit on a sphere of
 radius `CAMERA_DISTANCE` = 3 looking at the origin, with a vertical field of view that just fits the unit sphere
@@ -17,6 +17,12 @@ multisampled framebuffer and resolves it by averaging, which would blend the col
 edges; there the renderer re-allocates pyrender's multisample renderbuffers with a single sample (pyrender 0.1.45
 internals `_main_cb_ms`/`_main_db_ms`). Either way every pixel is the one face that covers its centre - what a ray
 through the pixel centre hits (tests/test_render.py checks this against trimesh ray casting).
+
+Shading. The RGB image comes from the same single GL pass: every visible face gets a grey value from two-sided
+Lambert shading of its normal under ambient light and a key light near the camera (`shade_faces`), looked up through
+the face-id buffer. That is exactly a flat-shaded render, at half the cost of a second, lit pass (OSMesa renders in
+software, and the whole render + vote budget is one second for 10 views). Meshes carry no textures here
+(`seggrasp.mesh.load_mesh` drops materials), so nothing is lost.
 """
 
 from __future__ import annotations
@@ -47,21 +53,19 @@ FOV_MARGIN = math.radians(4.0)
 MIN_SIN_ELEVATION = -0.3
 MAX_SIN_ELEVATION = 0.95
 DEFAULT_IMAGE_SIZE = 512
-#: Shaded image: light grey, slightly rough material under a head light plus ambient light, white background.
-SURFACE_COLOUR = (0.62, 0.62, 0.62, 1.0)
-BACKGROUND_COLOUR = (1.0, 1.0, 1.0, 1.0)
+#: Shaded image: a grey, flat-shaded (Lambert) surface lit by ambient light plus a key light near the camera, on white.
+SURFACE_GREY = 0.8
 AMBIENT_LIGHT = 0.3
-HEADLIGHT_INTENSITY = 2.0
+KEY_LIGHT = 0.75
 #: The key light shines from the camera, tilted this far towards the image top so that shapes read in 3-D.
-HEADLIGHT_TILT = math.radians(35.0)
+KEY_LIGHT_TILT = math.radians(35.0)
+BACKGROUND_VALUE = 255
 MAX_FACES = 2**24 - 2  # face ids + 1 must fit 24 bits of RGB
 
 #: OpenCV camera (x right, y down, z forward) -> OpenGL camera (x right, y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
-#: Pose of the key light in the OpenGL camera frame (it shines along its -z): turned about x towards image-up.
-_HEADLIGHT_IN_GL_CAMERA = np.eye(4)
-_HEADLIGHT_IN_GL_CAMERA[1:3, 1:3] = [[math.cos(HEADLIGHT_TILT), -math.sin(HEADLIGHT_TILT)],
-                                     [math.sin(HEADLIGHT_TILT), math.cos(HEADLIGHT_TILT)]]
+#: Direction towards the key light in OpenCV camera coordinates: backwards (towards the viewer) and up.
+_KEY_LIGHT_IN_CAMERA = np.array([0.0, -math.sin(KEY_LIGHT_TILT), -math.cos(KEY_LIGHT_TILT)])
 
 
 def field_of_view(distance: float = CAMERA_DISTANCE) -> float:
@@ -126,9 +130,21 @@ def encode_face_colours(n_faces: int) -> np.ndarray:
 
 
 def decode_face_ids(rgb: np.ndarray) -> np.ndarray:
-    """Inverse of `encode_face_colours` on a rendered (H, W, 3) image: face index per pixel, -1 for background."""
-    rgb = rgb.astype(np.int64)
+    """Inverse of `encode_face_colours` on a rendered (H, W, 3 or 4) uint8 image: face index per pixel, -1 for
+    background."""
+    rgb = np.asarray(rgb)
+    if rgb.dtype == np.uint8 and rgb.ndim == 3 and rgb.shape[2] == 4 and rgb.flags.c_contiguous:
+        packed = rgb.view("<u4")[..., 0]  # R | G << 8 | B << 16 | A << 24, read as one little-endian word
+        return (packed & 0xFFFFFF).astype(np.int64) - 1
+    rgb = rgb[..., :3].astype(np.int64)
     return rgb[..., 0] + (rgb[..., 1] << 8) + (rgb[..., 2] << 16) - 1
+
+
+def shade_faces(face_normals: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray:
+    """(F,) uint8 grey value of every face seen from a camera: ambient + key light, two-sided Lambert."""
+    light = T_world_cam[:3, :3] @ _KEY_LIGHT_IN_CAMERA
+    lambert = np.abs(face_normals @ light)
+    return np.clip(255.0 * SURFACE_GREY * (AMBIENT_LIGHT + KEY_LIGHT * lambert), 0, 255).astype(np.uint8)
 
 
 class ViewRenderer:
@@ -179,33 +195,25 @@ class ViewRenderer:
             raise ValueError(f"every camera must be outside the unit sphere; one is at distance {min(distances):.3g}")
         normalised = mesh.copy()
         normalised.apply_transform(unit_normalisation(mesh))
+        face_normals = np.asarray(normalised.face_normals)
         znear = max(min(distances, default=self.distance) - 1.05, 0.01)
         zfar = max(distances, default=self.distance) + 1.05
-        shaded_scene, id_scene, camera_nodes, light_node = self._build_scenes(normalised, znear, zfar)
+        scene, camera_node = self._build_scene(normalised, znear, zfar)
 
         views = []
+        flags = pyrender.RenderFlags.FLAT | pyrender.RenderFlags.RGBA
         for pose in poses:
-            gl_pose = pose @ _CV_TO_GL
-            shaded_scene.set_pose(camera_nodes[0], gl_pose)
-            shaded_scene.set_pose(light_node, gl_pose @ _HEADLIGHT_IN_GL_CAMERA)
-            id_scene.set_pose(camera_nodes[1], gl_pose)
-            rgb, _ = self._renderer.render(shaded_scene)
-            id_rgb, _ = self._renderer.render(id_scene, flags=pyrender.RenderFlags.FLAT)
-            views.append(View(rgb=np.ascontiguousarray(rgb[..., :3]), face_ids=decode_face_ids(id_rgb[..., :3]),
-                              K=self.K.copy(), T_world_cam=pose.copy()))
+            scene.set_pose(camera_node, pose @ _CV_TO_GL)
+            coded, _ = self._renderer.render(scene, flags=flags)
+            face_ids = decode_face_ids(np.ascontiguousarray(coded))
+            grey = np.append(shade_faces(face_normals, pose), np.uint8(BACKGROUND_VALUE))
+            rgb = np.repeat(grey[face_ids][..., None], 3, axis=2)  # id -1 picks the trailing background value
+            views.append(View(rgb=rgb, face_ids=face_ids, K=self.K.copy(), T_world_cam=pose.copy()))
         logger.debug("rendered %d views of %d faces at %d px", len(views), len(mesh.faces), self.image_size)
         return views
 
-    def _build_scenes(self, mesh: trimesh.Trimesh, znear: float, zfar: float):
-        fov = field_of_view(self.distance)
-
-        material = pyrender.MetallicRoughnessMaterial(baseColorFactor=SURFACE_COLOUR, metallicFactor=0.0,
-                                                      roughnessFactor=0.8, doubleSided=True)
-        shaded_scene = pyrender.Scene(bg_color=BACKGROUND_COLOUR, ambient_light=np.full(3, AMBIENT_LIGHT))
-        shaded_scene.add(pyrender.Mesh.from_trimesh(mesh, material=material, smooth=False))
-        shaded_camera = shaded_scene.add(pyrender.PerspectiveCamera(yfov=fov, znear=znear, zfar=zfar))
-        light = shaded_scene.add(pyrender.DirectionalLight(color=np.ones(3), intensity=HEADLIGHT_INTENSITY))
-
+    def _build_scene(self, mesh: trimesh.Trimesh, znear: float, zfar: float):
+        """Scene of the face-id mesh (three private vertices per face, colour = id + 1) and a camera node."""
         triangles = np.asarray(mesh.triangles, dtype=np.float32).reshape(-1, 3)
         colours = np.repeat(encode_face_colours(len(mesh.faces)), 3, axis=0)
         primitive = pyrender.Primitive(
@@ -213,10 +221,10 @@ class ViewRenderer:
             color_0=colours.astype(np.float32) / 255.0, mode=pyrender.constants.GLTF.TRIANGLES,
             material=pyrender.MetallicRoughnessMaterial(baseColorFactor=(1.0, 1.0, 1.0, 1.0), doubleSided=True),
         )
-        id_scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=np.zeros(3))
-        id_scene.add(pyrender.Mesh([primitive]))
-        id_camera = id_scene.add(pyrender.PerspectiveCamera(yfov=fov, znear=znear, zfar=zfar))
-        return shaded_scene, id_scene, (shaded_camera, id_camera), light
+        scene = pyrender.Scene(bg_color=(0.0, 0.0, 0.0, 0.0), ambient_light=np.zeros(3))
+        scene.add(pyrender.Mesh([primitive]))
+        camera = scene.add(pyrender.PerspectiveCamera(yfov=field_of_view(self.distance), znear=znear, zfar=zfar))
+        return scene, camera
 
 
 _shared_renderers: dict[tuple[int, int, float], ViewRenderer] = {}
