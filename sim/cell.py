@@ -11,8 +11,9 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
 2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
    speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
    finger stalls, lift, hold 1 s;
-3. report: lifted (raised >= 18 cm with both pads still touching it), lift height, the mesh faces the pads
-   touched (contact points in the object frame -> nearest face), and the pads' normal force while holding.
+3. report: lifted (raised >= 18 cm with both fingertips still touching it), lift height, the mesh faces the
+   fingertips (pads and the inner-finger rims they sit on) touched (contact points in the object frame -> nearest
+   face), and their total normal force while holding.
 """
 
 from __future__ import annotations
@@ -282,7 +283,7 @@ class GraspPrimitive:
         final_contacts = self._pad_contacts()
         touched = [*touched, *final_contacts]
         lift_height = float(self.world.body_pose(self.object_body)[2, 3] - z_start)
-        both_pads = {pad for pad, _ in final_contacts} == set(self.gripper.pad_links)
+        both_pads = {side for side, _ in final_contacts} == {0, 1}
         lifted = lift_height >= s.lift_success and both_pads
         faces = self._faces_of(np.array([p for _, p in touched])) if touched else np.zeros(0, dtype=np.int64)
         message = "lifted" if lifted else ("not lifted: dropped or never held" if not both_pads else "not lifted: too low")
@@ -312,19 +313,23 @@ class GraspPrimitive:
         return ""
 
     def _pad_contacts(self) -> list[tuple[int, np.ndarray]]:
-        """(pad link, contact point in the object frame) for every pad-object contact."""
+        """(side 0 = left / 1 = right, contact point in the object frame) for every fingertip-object contact
+        (a fingertip is the inner finger with its pad: the finger mesh's rim touches as well as the pad box)."""
         T_obj_world = np.linalg.inv(self.world.body_pose(self.object_body))
         contacts = []
-        for pad in self.gripper.pad_links:
-            for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=pad):
-                contacts.append((pad, (T_obj_world @ np.append(point[6], 1.0))[:3]))
+        for side, links in enumerate(self.gripper.fingertip_links):
+            for link in links:
+                for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=link):
+                    contacts.append((side, (T_obj_world @ np.append(point[6], 1.0))[:3]))
         return contacts
 
     def _pad_normal_force(self) -> float:
+        """Total normal force (N) between the fingertips and the object."""
         return float(sum(
             point[9]
-            for pad in self.gripper.pad_links
-            for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=pad)
+            for links in self.gripper.fingertip_links
+            for link in links
+            for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=link)
         ))
 
     def _faces_of(self, points: np.ndarray) -> np.ndarray:

@@ -32,11 +32,13 @@ MIMIC_JOINTS = {
     "right_inner_finger_joint": -1.0,
 }
 PAD_LINKS = ("left_inner_finger_pad", "right_inner_finger_pad")
+#: The rigid fingertip of each side: the inner finger and the pad mounted on it (both touch what is grasped).
+FINGERTIP_LINKS = (("left_inner_finger", "left_inner_finger_pad"), ("right_inner_finger", "right_inner_finger_pad"))
 PAD_THICKNESS = 0.00635
 FINGER_JOINT_MAX = 0.8
 #: Datasheet: 85 mm stroke.
 MAX_WIDTH = 0.085
-#: Pad friction (silicone-like pads), and a little torsional and rolling friction.
+#: Fingertip friction (silicone-like pads), and a little torsional and rolling friction.
 PAD_FRICTION = 1.0
 PAD_SPINNING_FRICTION = 0.002
 PAD_ROLLING_FRICTION = 0.0001
@@ -44,8 +46,9 @@ PAD_ROLLING_FRICTION = 0.0001
 
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 3 N m squeezes with 30-40 N total,
-    inside the 2F-85's 20-235 N), the followers' servo force, and stall detection."""
+    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 3 N m squeezes with ~40 N per
+    finger, 70-85 N summed over both, like the real cell's 40 N setting in the 2F-85's 20-235 N), the followers'
+    servo force, and stall detection."""
 
     closing_speed: float = 1.5
     closing_torque: float = 3.0
@@ -69,8 +72,9 @@ class Robotiq2F85:
         self.finger_joint = names[FINGER_JOINT]
         self.mimic = {names[n]: m for n, m in MIMIC_JOINTS.items()}
         self.pad_links = tuple(links[n] for n in PAD_LINKS)
+        self.fingertip_links = tuple(tuple(links[n] for n in side) for side in FINGERTIP_LINKS)
         world.pre_step_hooks.append(self._servo_followers)
-        for link in self.pad_links:
+        for link in (link for side in self.fingertip_links for link in side):
             c.changeDynamics(
                 body, link, lateralFriction=PAD_FRICTION, spinningFriction=PAD_SPINNING_FRICTION,
                 rollingFriction=PAD_ROLLING_FRICTION, frictionAnchor=1,
