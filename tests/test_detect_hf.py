@@ -112,10 +112,13 @@ def test_tiny_model_loads_from_disk_and_detects(name, tiny_weights, views):
 def test_batching_does_not_change_results(name, tiny_weights, views):
     batched = make(name, tiny_weights[name], 0.0, batch_size=3, nms_iou=None).detect(views, PROMPTS)
     single = make(name, tiny_weights[name], 0.0, batch_size=1, nms_iou=None).detect(views, PROMPTS)
+    def canonical_order(d: Detections) -> np.ndarray:
+        rounded = np.round(d.boxes, 2)
+        return np.lexsort((rounded[:, 3], rounded[:, 2], rounded[:, 1], rounded[:, 0], d.prompt_index))
+
     for a, b in zip(batched, single):
         assert len(a) == len(b)
-        order_a = np.lexsort((a.boxes[:, 0], a.prompt_index))
-        order_b = np.lexsort((b.boxes[:, 0], b.prompt_index))
+        order_a, order_b = canonical_order(a), canonical_order(b)
         np.testing.assert_allclose(a.boxes[order_a], b.boxes[order_b], atol=1e-3)
         np.testing.assert_allclose(a.scores[order_a], b.scores[order_b], atol=1e-4)
 
@@ -139,8 +142,9 @@ def test_owlv2_prompt_order_only_relabels(tiny_weights, views):
     backward = detector.detect(views[:1], PROMPTS[::-1])[0]
     n = len(PROMPTS)
     np.testing.assert_allclose(np.sort(forward.scores), np.sort(backward.scores), atol=1e-5)
-    order_f = np.lexsort((forward.boxes[:, 1], forward.boxes[:, 0], forward.prompt_index))
-    order_b = np.lexsort((backward.boxes[:, 1], backward.boxes[:, 0], n - 1 - backward.prompt_index))
+    rounded_f, rounded_b = np.round(forward.boxes, 2), np.round(backward.boxes, 2)
+    order_f = np.lexsort((*rounded_f.T[::-1], forward.prompt_index))
+    order_b = np.lexsort((*rounded_b.T[::-1], n - 1 - backward.prompt_index))
     np.testing.assert_array_equal(forward.prompt_index[order_f], n - 1 - backward.prompt_index[order_b])
 
 
