@@ -38,6 +38,7 @@ import hashlib
 import json
 import logging
 import multiprocessing
+import multiprocessing.connection
 import os
 import sys
 import time
@@ -91,6 +92,8 @@ FAST_COACD = dict(COACD_DEFAULTS, preprocess_resolution=30, resolution=1000, mct
 FAST_SIMPLIFY_TOLERANCE = 0.002
 #: Thresholds the fast mode runs before bisecting (indices into the grid are derived from these values).
 FAST_ANCHORS = (0.01, 0.03, 0.08, 0.25)
+#: At most this many CoACD runs per sweep in fast mode (bisection stops there; the finest threshold is always run).
+FAST_MAX_RUNS = 8
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,7 @@ class DecompositionConfig:
     coacd: tuple[tuple[str, object], ...] = ()
     simplify_tolerance: float | None = None
     adaptive: bool | None = None
+    max_runs: int | None = None
     log_level: str = "error"
 
     def __post_init__(self) -> None:
@@ -134,6 +138,8 @@ class DecompositionConfig:
         for key in ("resolution", "preprocess_resolution", "mcts_nodes", "mcts_iterations", "mcts_max_depth"):
             if int(params[key]) < 1:
                 raise ValueError(f"CoACD parameter {key} must be >= 1, got {params[key]}")
+        if self.max_runs is not None and self.max_runs < 2:
+            raise ValueError(f"max_runs must be at least 2 (the two ends of the grid), got {self.max_runs}")
         if not (0.0 <= self.effective_simplify_tolerance < 0.1):
             raise ValueError(f"simplify_tolerance must be in [0, 0.1), got {self.simplify_tolerance}")
 
@@ -149,6 +155,12 @@ class DecompositionConfig:
         if self.simplify_tolerance is not None:
             return float(self.simplify_tolerance)
         return 0.0 if self.mode == "reference" else FAST_SIMPLIFY_TOLERANCE
+
+    @property
+    def effective_max_runs(self) -> int | None:
+        if self.max_runs is not None:
+            return int(self.max_runs)
+        return FAST_MAX_RUNS if self.mode == "fast" else None
 
     @property
     def effective_adaptive(self) -> bool:
@@ -338,29 +350,34 @@ def select_thresholds(
     grid: Sequence[float],
     evaluate: Callable[[list[float]], dict[float, np.ndarray]],
     anchors: Sequence[float] = FAST_ANCHORS,
+    max_runs: int | None = None,
 ) -> dict[float, np.ndarray]:
     """Find every distinct partition of `grid` while running few thresholds.
 
     `evaluate(thresholds)` returns {threshold: canonical part_of_face} for a batch (run in parallel by the caller).
     First the grid ends and the grid values nearest to `anchors` are evaluated; then, in rounds, the midpoint of
     every interval between consecutive evaluated thresholds whose partitions differ. An interval whose two ends
-    agree is assumed constant. Returns the evaluated {threshold: partition}.
+    agree is assumed constant. With `max_runs`, the widest differing intervals are split first and the search stops
+    after that many evaluations. Returns the evaluated {threshold: partition}.
     """
     grid = sorted(float(t) for t in grid)
     chosen = {0, len(grid) - 1}
     for anchor in anchors:
         chosen.add(int(np.argmin([abs(t - anchor) for t in grid])))
     results: dict[int, np.ndarray] = {}
+    budget = len(grid) if max_runs is None else max(int(max_runs), 2)
     batch = sorted(chosen)
+    if len(batch) > budget:  # keep the two ends and the anchors nearest the fine end
+        batch = sorted([0, len(grid) - 1] + [i for i in batch if i not in (0, len(grid) - 1)][: budget - 2])
     while batch:
         found = evaluate([grid[i] for i in batch])
         for i in batch:
             results[i] = found[grid[i]]
         done = sorted(results)
-        batch = []
-        for low, high in zip(done, done[1:]):
-            if high - low > 1 and not np.array_equal(results[low], results[high]):
-                batch.append((low + high) // 2)
+        splits = [(high - low, low, high) for low, high in zip(done, done[1:])
+                  if high - low > 1 and not np.array_equal(results[low], results[high])]
+        splits.sort(key=lambda s: (-s[0], s[1]))
+        batch = sorted((low + high) // 2 for _, low, high in splits[: budget - len(results)])
     return {grid[i]: parts for i, parts in results.items()}
 
 
@@ -408,7 +425,17 @@ def decompose_sweep(
             if coarse is None:
                 coarse = simplify(mesh, config.effective_simplify_tolerance)
             jobs = [(coarse[0], coarse[1], centroids, scale, t, params, config.log_level) for t in missing]
-            for threshold, parts, seconds in _run_jobs(jobs, workers):
+            outcomes = _run_jobs(jobs, workers)
+            crashed = [t for t, outcome in zip(missing, outcomes) if outcome is None]
+            if crashed and len(coarse[1]) != n_faces:
+                logger.warning("CoACD crashed on the simplified mesh at thresholds %s; retrying on the full mesh", crashed)
+                full = (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64))
+                retry = [(full[0], full[1], centroids, scale, t, params, config.log_level) for t in crashed]
+                outcomes = [o for o in outcomes if o is not None] + _run_jobs(retry, workers)
+            if any(outcome is None for outcome in outcomes):
+                failed = sorted(set(missing) - {o[0] for o in outcomes if o is not None})
+                raise RuntimeError(f"CoACD crashed (its process died) at thresholds {failed} on this mesh")
+            for threshold, parts, seconds in outcomes:
                 found[threshold] = parts
                 stats.run_seconds[threshold] = seconds
                 atomic_save_npz(writable / f"{config.run_key(digest, threshold)}.npz", part_of_face=_compact(parts),
@@ -417,7 +444,7 @@ def decompose_sweep(
         return found
 
     if config.effective_adaptive:
-        evaluated = select_thresholds(config.thresholds, evaluate)
+        evaluated = select_thresholds(config.thresholds, evaluate, max_runs=config.effective_max_runs)
     else:
         evaluated = evaluate(list(config.thresholds))
     partitions = dedupe_partitions([Partition(t, parts) for t, parts in evaluated.items()])
@@ -426,12 +453,41 @@ def decompose_sweep(
     return partitions
 
 
-def _run_jobs(jobs: list[tuple], workers: int) -> list[tuple[float, np.ndarray, float]]:
-    if workers == 1 or len(jobs) == 1:
-        return [_decompose_once(job) for job in jobs]
+def _job_process(conn, job: tuple) -> None:
+    conn.send(_decompose_once(job))
+    conn.close()
+
+
+def _run_jobs(jobs: list[tuple], workers: int) -> list[tuple[float, np.ndarray, float] | None]:
+    """Run every job in its own child process, at most `workers` at a time; None for a run whose process died.
+
+    CoACD aborts the whole interpreter on some inputs (failed C++ assertions), so no run shares a process with the
+    caller or with another run.
+    """
     context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else "spawn")
-    with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context) as pool:
-        return list(pool.map(_decompose_once, jobs))
+    results: list[tuple[float, np.ndarray, float] | None] = [None] * len(jobs)
+    pending = list(range(len(jobs)))
+    running: dict[int, tuple] = {}
+    while pending or running:
+        while pending and len(running) < workers:
+            index = pending.pop(0)
+            receive, send = context.Pipe(duplex=False)
+            process = context.Process(target=_job_process, args=(send, jobs[index]), daemon=True)
+            process.start()
+            send.close()
+            running[index] = (process, receive)
+        ready = multiprocessing.connection.wait([receive for _, receive in running.values()])
+        for index, (process, receive) in list(running.items()):
+            if receive not in ready:
+                continue
+            try:
+                results[index] = receive.recv()
+            except EOFError:  # the child died (CoACD abort) before sending
+                results[index] = None
+            process.join()
+            receive.close()
+            del running[index]
+    return results
 
 
 # -------------------------------------------------------------------------------------------------------- CLI

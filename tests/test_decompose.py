@@ -1,5 +1,8 @@
 """Decomposition sweep: face -> hull mapping, dedup, threshold selection, cache, determinism, reference mode."""
 
+import json
+import os
+
 import numpy as np
 import pytest
 import trimesh
@@ -98,6 +101,10 @@ def test_threshold_selection_returns_every_distinct_partition_of_the_grid_with_f
     assert all(a.same_as(b) for a, b in zip(distinct, full))
     assert len(runs) == len(set(runs)) < len(grid)
 
+    runs.clear()
+    capped = select_thresholds(grid, evaluate, max_runs=5)
+    assert len(runs) == len(capped) == 5 and min(capped) == 0.01 and max(capped) == 0.25
+
 
 def test_log_level_is_validated_before_coacd_sees_it():
     with pytest.raises(ValueError, match="log level"):
@@ -110,20 +117,47 @@ def test_log_level_is_validated_before_coacd_sees_it():
         DecompositionConfig(mode="quick")
 
 
+def recording_coacd(log, result, real=None):
+    """A stand-in for `run_coacd_hulls` that logs its calls to a file (runs happen in child processes)."""
+
+    def fake(vertices, faces, threshold, params):
+        with open(log, "a") as handle:
+            handle.write(json.dumps([threshold, params, len(faces), os.getpid()]) + "\n")
+        return real(vertices, faces, threshold, params) if real else result
+
+    return fake
+
+
+def logged_calls(log):
+    return [json.loads(line) for line in open(log)] if os.path.exists(log) else []
+
+
 def test_reference_mode_runs_the_literal_paper_sweep(monkeypatch, tmp_path):
     mesh = l_shape()
-    calls = []
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    partitions = decompose_sweep(mesh, DecompositionConfig(mode="reference", seed=3), cache_dir=tmp_path)
+    calls = logged_calls(log)
+    assert [c[0] for c in calls] == [pytest.approx(0.01 * k) for k in range(1, 26)]  # all 25, serial, in order
+    assert all(c[1] == dict(COACD_DEFAULTS, seed=3) for c in calls)
+    assert all(c[2] == len(mesh.faces) for c in calls)  # no simplification
+    assert len(partitions) == 1 and partitions[0].threshold == pytest.approx(0.01)
 
-    def fake_coacd(vertices, faces, threshold, params):
-        calls.append((threshold, dict(params), len(faces)))
+
+def test_a_crashing_coacd_run_raises_instead_of_killing_the_interpreter(monkeypatch, tmp_path):
+    mesh = l_shape().subdivide().subdivide()
+
+    def abort_on_simplified(vertices, faces, threshold, params):
+        if len(faces) < len(mesh.faces):
+            os.abort()
         return [np.asarray(mesh.bounding_box.vertices)]
 
-    monkeypatch.setattr(decompose, "run_coacd_hulls", fake_coacd)
-    partitions = decompose_sweep(mesh, DecompositionConfig(mode="reference", seed=3), cache_dir=tmp_path)
-    assert [c[0] for c in calls] == [pytest.approx(0.01 * k) for k in range(1, 26)]  # serial, in order, in-process
-    assert all(c[1] == dict(COACD_DEFAULTS, seed=3) for c in calls)
-    assert all(c[2] == len(mesh.faces) for c in calls)  # no decimation
-    assert len(partitions) == 1 and partitions[0].threshold == pytest.approx(0.01)
+    monkeypatch.setattr(decompose, "run_coacd_hulls", abort_on_simplified)
+    (partition,) = decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "a")
+    assert partition.part_of_face.shape == (len(mesh.faces),)  # retried on the full mesh
+    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    with pytest.raises(RuntimeError, match="crashed"):
+        decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "b")
 
 
 def test_cache_hit_on_second_call_and_miss_on_changed_parameter(monkeypatch, tmp_path):
@@ -132,26 +166,20 @@ def test_cache_hit_on_second_call_and_miss_on_changed_parameter(monkeypatch, tmp
     first = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
     assert all(p.part_of_face.shape == (len(mesh.faces),) for p in first)
 
-    calls = []
-    real = decompose.run_coacd_hulls
-
-    def counting(*args):
-        calls.append(args[2])
-        return real(*args)
-
-    monkeypatch.setattr(decompose, "run_coacd_hulls", counting)
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=decompose.run_coacd_hulls))
     stats = SweepStats()
     second = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1, stats=stats)
-    assert calls == [] and sorted(stats.cached) == [0.05, 0.2]
+    assert logged_calls(log) == [] and sorted(stats.cached) == [0.05, 0.2]
     assert len(second) == len(first) and all(a.same_as(b) for a, b in zip(first, second))
 
     changed = DecompositionConfig(thresholds=(0.05, 0.2), coacd=dict(QUICK, resolution=301), adaptive=False)
     decompose_sweep(mesh, changed, cache_dir=tmp_path, workers=1)
-    assert sorted(calls) == [0.05, 0.2]
-    calls.clear()
+    assert sorted(c[0] for c in logged_calls(log)) == [0.05, 0.2]
+    os.remove(log)
     decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05, 0.2), coacd=QUICK, adaptive=False, seed=1),
                     cache_dir=tmp_path, workers=1)
-    assert sorted(calls) == [0.05, 0.2]
+    assert sorted(c[0] for c in logged_calls(log)) == [0.05, 0.2]
 
 
 def test_sweep_is_deterministic_and_splits_the_l_shape(tmp_path):
