@@ -2,9 +2,10 @@
 
 - `check`: validate the config and print a summary; with `--connect`, also connect, read the arm and gripper
   state and capture one frame per camera.
-- `calibrate`: eye-to-hand calibration of one table-mounted camera with a checkerboard held by the gripper; the
-  gripper visits the poses listed in a YAML file (`poses: [{xyz: [...], rpy: [...]}, ...]` or 4x4 matrices),
-  and the camera's `T_world_cam` is merged into the calibration file.
+- `calibrate`: hand-eye calibration of one camera. The gripper visits the poses listed in a YAML file
+  (`poses: [{xyz: [...], rpy: [...]}, ...]` or 4x4 matrices). A table-mounted camera watches a checkerboard held
+  by the gripper (eye-to-hand -> `T_world_cam`); a wrist-mounted camera watches a checkerboard fixed on the table
+  (eye-in-hand -> `T_gripper_cam`). The result is merged into the calibration file.
 - `grasp`: one top-down grasp at a point (reset, execute, print the outcome) - the first grasp on a new cell.
 """
 
@@ -20,8 +21,9 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation
 
-from hardware.calibration import (Checkerboard, calibrate_eye_to_hand, collect_samples, eye_to_hand_residual,
-                                  load_extrinsics, save_extrinsics)
+from hardware.calibration import (EXTRINSIC_KEYS, EYE_IN_HAND_METHODS, EYE_TO_HAND_METHODS, Checkerboard,
+                                  calibrate_eye_in_hand, calibrate_eye_to_hand, collect_samples,
+                                  eye_in_hand_residual, eye_to_hand_residual, load_extrinsics, save_extrinsics)
 from hardware.cell import RealCell
 from hardware.config import ConfigError, load_config, transform_from_config
 from hardware.errors import HardwareError
@@ -36,14 +38,15 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("--connect", action="store_true", help="connect and read the hardware's state")
     check.add_argument("--dry-run", action="store_true", help="with --connect: do not connect to robot/gripper")
 
-    calibrate = commands.add_parser("calibrate", help="eye-to-hand calibration of one table-mounted camera")
+    calibrate = commands.add_parser("calibrate", help="hand-eye calibration of one camera (table or wrist)")
     calibrate.add_argument("config", type=Path)
     calibrate.add_argument("--serial", required=True, help="the camera to calibrate")
     calibrate.add_argument("--poses", required=True, type=Path, help="YAML file with the gripper poses to visit")
     calibrate.add_argument("--board", default="7x6", help="inner corners COLUMNSxROWS (one even, one odd)")
     calibrate.add_argument("--square", type=float, required=True, help="checkerboard square size in metres")
     calibrate.add_argument("--out", type=Path, help="calibration file (default: the config's calibration.file)")
-    calibrate.add_argument("--method", default="shah", choices=["shah", "li"])
+    calibrate.add_argument("--method", choices=sorted(EYE_TO_HAND_METHODS) + sorted(EYE_IN_HAND_METHODS),
+                           help="solver (default: shah for table cameras, park for wrist cameras)")
     calibrate.add_argument("--dry-run", action="store_true", help="check and log the tour of poses only")
 
     grasp = commands.add_parser("grasp", help="one top-down grasp at a world point")
@@ -90,19 +93,25 @@ def _calibrate(args: argparse.Namespace) -> None:
     board = Checkerboard(columns, rows, args.square)
     poses = _read_poses(args.poses)
     config = load_config(args.config, require_calibration=False)
+    camera_config = next((c for c in config.cameras if c.serial == args.serial), None)
+    if camera_config is None:
+        raise ValueError(f"camera {args.serial} is not in {args.config}")
+    wrist = camera_config.mount == "wrist"
+    method = args.method or ("park" if wrist else "shah")
+    if method not in (EYE_IN_HAND_METHODS if wrist else EYE_TO_HAND_METHODS):
+        raise ValueError(f"--method {method} does not solve the {camera_config.mount}-mounted case")
     out = args.out
     if out is None:
         file = yaml.safe_load(args.config.read_text()).get("calibration", {}).get("file")
         if not file:
             raise ValueError("give --out (the config has no calibration.file to update)")
         out = Path(file) if Path(file).is_absolute() else args.config.parent / file
-    if args.serial not in {c.serial for c in config.cameras}:
-        raise ValueError(f"camera {args.serial} is not in {args.config}")
+    motion = config.motion
     if args.dry_run:  # check and log the tour only: a camera in front of a robot that does not move sees nothing new
         cell = RealCell.from_config(args.config, dry_run=True, require_calibration=False, with_cameras=False)
         try:
             for pose in poses:
-                cell.arm.move_linear(pose, config.motion.tool_speed, config.motion.tool_acceleration)
+                cell.arm.move_linear(pose, motion.tool_speed, motion.tool_acceleration)
         finally:
             cell.close()
         print(f"dry run: all {len(poses)} calibration poses are within the limits; nothing moved")
@@ -110,21 +119,27 @@ def _calibrate(args: argparse.Namespace) -> None:
     cell = RealCell.from_config(args.config, require_calibration=False)
     try:
         camera = next(c for c in cell.cameras if c.config.serial == args.serial)
-        motion = config.motion
-        grippers, boards = collect_samples(cell.arm, camera, poses, board, speed=motion.tool_speed,
-                                           acceleration=motion.tool_acceleration)
+        grippers, boards = collect_samples(cell.arm, lambda: camera.capture(cell.arm.tcp_pose()), poses, board,
+                                           speed=motion.tool_speed, acceleration=motion.tool_acceleration)
         cell.arm.move_joints(config.robot.home_joints, motion.joint_speed, motion.joint_acceleration)
     finally:
         cell.close()
     if len(boards) < 3:
         raise ValueError(f"the board was seen in only {len(boards)} of {len(poses)} poses; need at least 3")
-    T_world_cam, T_gripper_target = calibrate_eye_to_hand(grippers, boards, args.method)
-    residual = eye_to_hand_residual(T_world_cam, T_gripper_target, grippers, boards)
-    extrinsics = load_extrinsics(out) if out.exists() else {}
-    extrinsics[args.serial] = T_world_cam
-    save_extrinsics(out, extrinsics, {"last_calibrated": args.serial, "method": args.method,
-                                      "samples": len(boards), "residual_m": round(residual, 6)})
-    print(f"camera {args.serial}: T_world_cam written to {out} ({len(boards)}/{len(poses)} poses, "
+    if wrist:
+        key, T = "T_gripper_cam", calibrate_eye_in_hand(grippers, boards, method)
+        residual = eye_in_hand_residual(T, grippers, boards)
+    else:
+        key = "T_world_cam"
+        T, T_gripper_target = calibrate_eye_to_hand(grippers, boards, method)
+        residual = eye_to_hand_residual(T, T_gripper_target, grippers, boards)
+    extrinsics = load_extrinsics(out) if out.exists() else {k: {} for k in EXTRINSIC_KEYS}
+    for other in EXTRINSIC_KEYS:  # a camera has one calibration: drop an old one of the other kind
+        extrinsics[other].pop(args.serial, None)
+    extrinsics[key][args.serial] = T
+    save_extrinsics(out, extrinsics, {"last_calibrated": args.serial, "method": method, "samples": len(boards),
+                                      "residual_m": round(residual, 6)})
+    print(f"camera {args.serial}: {key} written to {out} ({len(boards)}/{len(poses)} poses, "
           f"residual {residual * 1000:.2f} mm)")
 
 

@@ -1,7 +1,8 @@
 """Camera extrinsics: the calibration file, checkerboard pose detection and hand-eye calibration (OpenCV).
 
-The calibration file is YAML: ``T_world_cam: {<serial>: <4x4 matrix>}`` (colour optical frame -> world, the world
-being the robot base frame), plus free-form ``metadata``. Two hand-eye problems are solved with OpenCV:
+The calibration file is YAML: ``T_world_cam: {<serial>: <4x4 matrix>}`` for table-mounted cameras (colour optical
+frame -> world, the world being the robot base frame) and ``T_gripper_cam: {<serial>: <4x4 matrix>}`` for
+wrist-mounted ones, plus free-form ``metadata``. Two hand-eye problems are solved with OpenCV:
 
 - table-mounted camera, checkerboard held by the gripper (eye-to-hand): `calibrate_eye_to_hand` solves
   ``T_cam_target @ T_target_gripper = T_cam_base @ T_base_gripper`` with `cv2.calibrateRobotWorldHandEye`
@@ -11,7 +12,7 @@ being the robot base frame), plus free-form ``metadata``. Two hand-eye problems 
   ``T_gripper_cam`` with `cv2.calibrateHandEye`.
 
 `collect_samples` drives the arm through a list of gripper poses (every motion goes through the safety guard) and
-records the gripper pose with the checkerboard pose seen by one camera at each stop.
+records the gripper pose with the checkerboard pose seen by one camera at each stop; it serves both problems.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import cv2
 import numpy as np
@@ -29,6 +30,9 @@ from seggrasp.io import atomic_write_text
 
 log = logging.getLogger(__name__)
 
+#: What a calibration file holds per camera serial: table-mounted cameras' pose in the world, wrist-mounted
+#: cameras' pose in the gripper frame.
+EXTRINSIC_KEYS = ("T_world_cam", "T_gripper_cam")
 EYE_TO_HAND_METHODS = {"shah": cv2.CALIB_ROBOT_WORLD_HAND_EYE_SHAH, "li": cv2.CALIB_ROBOT_WORLD_HAND_EYE_LI}
 EYE_IN_HAND_METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_EYE_PARK,
                        "horaud": cv2.CALIB_HAND_EYE_HORAUD, "andreff": cv2.CALIB_HAND_EYE_ANDREFF,
@@ -36,8 +40,9 @@ EYE_IN_HAND_METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_E
 
 
 # ------------------------------------------------------------------------------------------------ calibration file
-def load_extrinsics(path: str | Path) -> dict[str, np.ndarray]:
-    """Read ``T_world_cam`` per camera serial; raises `ValueError` naming the file and the serial on bad input."""
+def load_extrinsics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
+    """Read a calibration file: {"T_world_cam": {serial: 4x4}, "T_gripper_cam": {serial: 4x4}} (either may be
+    empty, not both); raises `ValueError` naming the file and the entry on bad input."""
     from hardware.config import transform_from_config  # local import: config imports this module lazily too
 
     path = Path(path)
@@ -47,16 +52,30 @@ def load_extrinsics(path: str | Path) -> dict[str, np.ndarray]:
         data = yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         raise ValueError(f"calibration file {path} is not valid YAML: {exc}") from None
-    if not isinstance(data, dict) or not isinstance(data.get("T_world_cam"), dict) or not data["T_world_cam"]:
-        raise ValueError(f"calibration file {path} must contain 'T_world_cam: {{<serial>: <4x4 matrix>}}'")
-    return {str(serial): transform_from_config(T, f"T_world_cam.{serial}", str(path))
-            for serial, T in data["T_world_cam"].items()}
+    if not isinstance(data, dict):
+        data = {}
+    extrinsics: dict[str, dict[str, np.ndarray]] = {}
+    for key in EXTRINSIC_KEYS:
+        entries = data.get(key) or {}
+        if not isinstance(entries, dict):
+            raise ValueError(f"calibration file {path}: {key} must map camera serials to 4x4 matrices")
+        extrinsics[key] = {str(serial): transform_from_config(T, f"{key}.{serial}", str(path))
+                           for serial, T in entries.items()}
+    if not any(extrinsics.values()):
+        raise ValueError(f"calibration file {path} must contain 'T_world_cam: {{<serial>: <4x4 matrix>}}' "
+                         "(table-mounted cameras) and/or 'T_gripper_cam: {...}' (wrist-mounted cameras)")
+    return extrinsics
 
 
-def save_extrinsics(path: str | Path, extrinsics: dict[str, np.ndarray], metadata: dict | None = None) -> None:
+def save_extrinsics(path: str | Path, extrinsics: dict[str, dict[str, np.ndarray]],
+                    metadata: dict | None = None) -> None:
     """Write (atomically) a calibration file that `load_extrinsics` reads back."""
-    document: dict[str, Any] = {"T_world_cam": {str(serial): np.asarray(T, dtype=float).round(9).tolist()
-                                                for serial, T in extrinsics.items()}}
+    unknown = set(extrinsics) - set(EXTRINSIC_KEYS)
+    if unknown:
+        raise ValueError(f"unknown extrinsic kinds {sorted(unknown)}; use {EXTRINSIC_KEYS}")
+    document: dict[str, Any] = {key: {str(serial): np.asarray(T, dtype=float).round(9).tolist()
+                                      for serial, T in extrinsics[key].items()}
+                                for key in EXTRINSIC_KEYS if extrinsics.get(key)}
     if metadata:
         document["metadata"] = metadata
     atomic_write_text(path, yaml.safe_dump(document, sort_keys=False))
@@ -126,6 +145,14 @@ def eye_to_hand_residual(T_base_cam: np.ndarray, T_gripper_target: np.ndarray,
     return float(np.sqrt(np.mean(np.square(errors))))
 
 
+def eye_in_hand_residual(T_gripper_cam: np.ndarray, T_base_gripper: Sequence[np.ndarray],
+                         T_cam_target: Sequence[np.ndarray]) -> float:
+    """RMS distance (m) of the fixed target's origin, as each sample places it, from their mean."""
+    origins = np.array([(np.asarray(T_bg) @ T_gripper_cam @ np.asarray(T_ct))[:3, 3]
+                        for T_bg, T_ct in zip(T_base_gripper, T_cam_target)])
+    return float(np.sqrt(np.mean(np.sum((origins - origins.mean(axis=0)) ** 2, axis=1))))
+
+
 # ------------------------------------------------------------------------------------------------ target detection
 @dataclass(frozen=True)
 class Checkerboard:
@@ -162,16 +189,17 @@ def detect_checkerboard(rgb: np.ndarray, K: np.ndarray, board: Checkerboard) -> 
     return _join(cv2.Rodrigues(rvec)[0], tvec)
 
 
-def collect_samples(arm: Any, camera: Any, poses: Sequence[np.ndarray], board: Checkerboard, *, speed: float,
-                    acceleration: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Move through `poses` (T_world_gripper) and return (T_base_gripper, T_cam_target) where the board was seen."""
+def collect_samples(arm: Any, capture: Callable[[], Any], poses: Sequence[np.ndarray], board: Checkerboard, *,
+                    speed: float, acceleration: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Move through `poses` (T_world_gripper), `capture()` a frame at each, and return (T_base_gripper,
+    T_cam_target) for the stops where the board was found."""
     gripper_poses, target_poses = [], []
     for index, pose in enumerate(poses):
         arm.move_linear(pose, speed, acceleration)
-        frame = camera.capture()
+        frame = capture()
         T_cam_target = detect_checkerboard(frame.rgb, frame.K, board)
         if T_cam_target is None:
-            log.warning("calibration pose %d: checkerboard not found by camera %s; skipped", index, camera.name)
+            log.warning("calibration pose %d: checkerboard not found by camera %s; skipped", index, frame.name)
             continue
         gripper_poses.append(arm.tcp_pose())
         target_poses.append(T_cam_target)

@@ -155,9 +155,11 @@ class RealCell:
             input(prompt + " Press Enter when done. ")
 
     def capture(self) -> list[Frame]:
-        """One aligned RGB-D frame from every camera."""
+        """One aligned RGB-D frame from every camera (wrist cameras placed by the gripper's current pose)."""
         self._check_open()
-        return [camera.capture() for camera in self.cameras]
+        wrist = any(camera.config.mount == "wrist" for camera in self.cameras)
+        T_world_gripper = self.arm.tcp_pose() if wrist else None
+        return [camera.capture(T_world_gripper) for camera in self.cameras]
 
     def object_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
         """Not available on the real robot: the mesh must be reconstructed from the camera frames."""

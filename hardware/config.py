@@ -60,16 +60,32 @@ class GripperConfig:
         return float(self.closing_shift * (1.0 - np.clip(width / self.stroke, 0.0, 1.0)))
 
 
+CAMERA_MOUNTS = ("table", "wrist")
+
+
 @dataclass(frozen=True)
 class CameraConfig:
-    """One RealSense camera, identified by its serial number."""
+    """One RealSense camera, identified by its serial number, fixed in the cell ("table") or on the gripper.
+
+    `T_mount_cam` is the colour optical frame (OpenCV) in its mount's frame: `T_world_cam` for a table-mounted
+    camera, `T_gripper_cam` for a wrist-mounted one.
+    """
 
     serial: str
     name: str
     width: int
     height: int
     fps: int
-    T_world_cam: np.ndarray  # (4, 4) colour optical frame (OpenCV) -> world
+    mount: str
+    T_mount_cam: np.ndarray  # (4, 4)
+
+    def T_world_cam(self, T_world_gripper: np.ndarray | None = None) -> np.ndarray:
+        """The camera's pose in the world; a wrist camera needs the gripper's pose."""
+        if self.mount == "table":
+            return self.T_mount_cam.copy()
+        if T_world_gripper is None:
+            raise ValueError(f"camera {self.name} is on the wrist: its pose needs the gripper's pose")
+        return np.asarray(T_world_gripper, dtype=np.float64) @ self.T_mount_cam
 
 
 @dataclass(frozen=True)
@@ -234,7 +250,7 @@ def load_config(path: str | Path, *, require_calibration: bool = True) -> CellCo
     """Read and validate a cell YAML file; raises `ConfigError` naming the field on any problem.
 
     With `require_calibration=False` (used to calibrate the cameras in the first place) the calibration section
-    may be absent or incomplete; uncalibrated cameras get `T_world_cam` = identity.
+    may be absent or incomplete; uncalibrated cameras get `T_mount_cam` = identity.
     """
     path = Path(path)
     if not path.is_file():
@@ -383,17 +399,22 @@ def _parse_cameras(r: _Reader, data: dict, path: Path, require_calibration: bool
         p = f"cameras[{index}]."
         if not isinstance(entry, dict):
             raise r.error(f"cameras[{index}]", f"must be a mapping with a serial, got {entry!r}")
-        r.check_keys(entry, p, {"serial", "name", "width", "height", "fps"})
+        r.check_keys(entry, p, {"serial", "name", "width", "height", "fps", "mount"})
         serial = r.string(entry, "serial", p)
-        if serial not in extrinsics and require_calibration:
-            raise r.error(f"{p}serial", f"no T_world_cam for camera {serial} in the calibration")
+        mount = r.string(entry, "mount", p, "table")
+        if mount not in CAMERA_MOUNTS:
+            raise r.error(f"{p}mount", f"must be one of {CAMERA_MOUNTS}, got {mount!r}")
+        key = "T_world_cam" if mount == "table" else "T_gripper_cam"
+        if serial not in extrinsics[key] and require_calibration:
+            raise r.error(f"{p}serial", f"no {key} for {mount}-mounted camera {serial} in the calibration")
         cameras.append(CameraConfig(
             serial=serial,
             name=r.string(entry, "name", p, f"cam{serial}"),
             width=r.integer(entry, "width", p, 640, low=1, high=4096),
             height=r.integer(entry, "height", p, 480, low=1, high=4096),
             fps=r.integer(entry, "fps", p, 30, low=1, high=300),
-            T_world_cam=extrinsics.get(serial, np.eye(4)),
+            mount=mount,
+            T_mount_cam=extrinsics[key].get(serial, np.eye(4)),
         ))
     serials = [c.serial for c in cameras]
     if len(set(serials)) != len(serials):
@@ -404,12 +425,16 @@ def _parse_cameras(r: _Reader, data: dict, path: Path, require_calibration: bool
     return tuple(cameras)
 
 
-def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> dict[str, np.ndarray]:
-    section = r.section(data, "calibration", "", {"file", "T_world_cam"}, required=required)
+def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> dict[str, dict[str, np.ndarray]]:
+    """{"T_world_cam": {serial: T}, "T_gripper_cam": {serial: T}} from the file or the inline matrices."""
+    empty: dict[str, dict[str, np.ndarray]] = {"T_world_cam": {}, "T_gripper_cam": {}}
+    section = r.section(data, "calibration", "", {"file", "T_world_cam", "T_gripper_cam"}, required=required)
     if not section and not required:
-        return {}
-    if ("file" in section) == ("T_world_cam" in section):
-        raise r.error("calibration", "give exactly one of calibration.file or calibration.T_world_cam")
+        return empty
+    inline_keys = [key for key in empty if key in section]
+    if ("file" in section) == bool(inline_keys):
+        raise r.error("calibration", "give either calibration.file or inline calibration.T_world_cam / "
+                      "calibration.T_gripper_cam, not both and not neither")
     if "file" in section:
         from hardware.calibration import load_extrinsics  # local import: calibration imports this module
 
@@ -417,15 +442,17 @@ def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> di
         if not file.is_absolute():
             file = path.parent / file
         if not file.exists() and not required:
-            return {}
+            return empty
         try:
             return load_extrinsics(file)
         except ValueError as exc:
             raise r.error("calibration.file", str(exc)) from None
-    inline = section["T_world_cam"]
-    if not isinstance(inline, dict) or not inline:
-        raise r.error("calibration.T_world_cam", "must map camera serials to 4x4 matrices")
-    return {str(serial): r.transform(T, f"calibration.T_world_cam.{serial}") for serial, T in inline.items()}
+    for key in inline_keys:
+        inline = section[key]
+        if not isinstance(inline, dict) or not inline:
+            raise r.error(f"calibration.{key}", "must map camera serials to 4x4 matrices")
+        empty[key] = {str(serial): r.transform(T, f"calibration.{key}.{serial}") for serial, T in inline.items()}
+    return empty
 
 
 def transform_from_config(value: Any, name: str, source: str = "calibration") -> np.ndarray:

@@ -3,7 +3,8 @@
 Each camera streams RGB (rgb8) and depth (z16); `rs.align(rs.stream.color)` resamples depth into the colour
 camera, so one K (the colour intrinsics) describes both images. Depth is converted to float32 metres with the
 device's depth scale (0 stays 0 = no reading). `T_world_cam` comes from the calibration (colour optical frame,
-which is the OpenCV convention: x right, y down, z forward).
+which is the OpenCV convention: x right, y down, z forward); a wrist-mounted camera's is the gripper pose at the
+capture times its calibrated `T_gripper_cam`.
 """
 
 from __future__ import annotations
@@ -83,8 +84,11 @@ class RealSenseCamera:
             raise ConnectionLostError(f"RealSense camera {self.config.serial} ({self.name}) delivered no frames "
                                       f"within {self.timeout_ms} ms: {exc}") from exc
 
-    def capture(self) -> Frame:
-        """One aligned RGB-D frame as a `seggrasp.cell.Frame` (depth in metres, 0 = no reading)."""
+    def capture(self, T_world_gripper: np.ndarray | None = None) -> Frame:
+        """One aligned RGB-D frame as a `seggrasp.cell.Frame` (depth in metres, 0 = no reading).
+
+        A wrist-mounted camera needs the gripper's pose at the moment of capture to place the frame in the world.
+        """
         if not self._running or self.K is None or self.depth_scale is None:
             raise ConnectionLostError(f"camera {self.name} is not streaming (call start() first)")
         frames = self._align.process(self._wait_for_frames())
@@ -97,7 +101,7 @@ class RealSenseCamera:
             raise ConnectionLostError(f"camera {self.name}: colour {rgb.shape} and aligned depth {raw_depth.shape} "
                                       "do not match")
         return Frame(name=self.name, rgb=rgb, depth=(raw_depth.astype(np.float32) * np.float32(self.depth_scale)),
-                     K=self.K.copy(), T_world_cam=self.config.T_world_cam.copy())
+                     K=self.K.copy(), T_world_cam=self.config.T_world_cam(T_world_gripper))
 
     def stop(self) -> None:
         """Stop streaming. Safe to call more than once."""

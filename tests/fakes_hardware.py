@@ -401,7 +401,8 @@ class FakePipeline:
         self.started, self.config = True, config
         sensor = SimpleNamespace(get_depth_scale=lambda: self.depth_scale)
         device = SimpleNamespace(first_depth_sensor=lambda: sensor)
-        stream = SimpleNamespace(as_video_stream_profile=lambda: SimpleNamespace(get_intrinsics=lambda: self.intrinsics))
+        video = SimpleNamespace(get_intrinsics=lambda: self.intrinsics)
+        stream = SimpleNamespace(as_video_stream_profile=lambda: video)
         return SimpleNamespace(get_device=lambda: device, get_stream=lambda kind: stream)
 
     def wait_for_frames(self, timeout_ms: int = 5000) -> _FrameSet:

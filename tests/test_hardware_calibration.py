@@ -9,7 +9,8 @@ from scipy.spatial.transform import Rotation
 
 from fakes_hardware import EXAMPLE_CONFIG
 from hardware.calibration import (Checkerboard, calibrate_eye_in_hand, calibrate_eye_to_hand, collect_samples,
-                                  detect_checkerboard, eye_to_hand_residual, load_extrinsics, save_extrinsics)
+                                  detect_checkerboard, eye_in_hand_residual, eye_to_hand_residual, load_extrinsics,
+                                  save_extrinsics)
 from hardware.cell import make_guard
 from hardware.config import ConfigError, load_config
 from hardware.ur import URArm
@@ -124,7 +125,13 @@ def test_eye_to_hand_recovers_the_camera_pose(method):
 @pytest.mark.parametrize("method", ["tsai", "park", "daniilidis"])
 def test_eye_in_hand_recovers_the_wrist_camera(method):
     grippers, _, observed, _, _, T_gripper_cam = synthetic_samples(15, 0.0, np.random.default_rng(2))
-    np.testing.assert_allclose(calibrate_eye_in_hand(grippers, observed, method), T_gripper_cam, atol=1e-6)
+    found = calibrate_eye_in_hand(grippers, observed, method)
+    np.testing.assert_allclose(found, T_gripper_cam, atol=1e-6)
+    assert eye_in_hand_residual(found, grippers, observed) < 1e-9
+    grippers, _, observed, _, _, T_gripper_cam = synthetic_samples(20, 0.001, np.random.default_rng(5))
+    found = calibrate_eye_in_hand(grippers, observed, method)
+    assert np.linalg.norm(found[:3, 3] - T_gripper_cam[:3, 3]) < 0.005
+    assert 0.0005 < eye_in_hand_residual(found, grippers, observed) < 0.005
 
 
 def test_bad_calibration_input_is_rejected():
@@ -142,16 +149,18 @@ def test_bad_calibration_input_is_rejected():
 def test_extrinsics_file_round_trips_and_feeds_the_config(tmp_path):
     T = look_at(np.array([0.5, 0.9, 0.7]), [0.5, 0.1, 0.1])
     path = tmp_path / "calibration.yaml"
-    save_extrinsics(path, {"012345678901": T, "012345678902": np.eye(4)}, {"method": "shah", "residual_m": 0.001})
+    save_extrinsics(path, {"T_world_cam": {"012345678901": T, "012345678902": np.eye(4)}, "T_gripper_cam": {}},
+                    {"method": "shah", "residual_m": 0.001})
     loaded = load_extrinsics(path)
-    np.testing.assert_allclose(loaded["012345678901"], T, atol=1e-8)
+    np.testing.assert_allclose(loaded["T_world_cam"]["012345678901"], T, atol=1e-8)
+    assert loaded["T_gripper_cam"] == {}
     # the cell config can point at the file instead of inline matrices
     text = EXAMPLE_CONFIG.read_text()
     start = text.index("  T_world_cam:")
     end = text.index("\nworkspace:")
     (tmp_path / "cell.yaml").write_text(text[:start] + "  file: calibration.yaml\n" + text[end:])
     config = load_config(tmp_path / "cell.yaml")
-    np.testing.assert_allclose(config.cameras[0].T_world_cam, T, atol=1e-8)
+    np.testing.assert_allclose(config.cameras[0].T_world_cam(), T, atol=1e-8)
     path.write_text("T_world_cam: {'012345678901': [[1, 0], [0, 1]]}\n")
     with pytest.raises(ConfigError, match="calibration.file: .*4x4"):
         load_config(tmp_path / "cell.yaml")
@@ -185,7 +194,7 @@ def test_eye_to_hand_routine_end_to_end_with_rendered_images():
         poses.append(transform(rotation, [0.5, 0.1, 0.3] + rng.uniform([-0.08, -0.08, -0.05],
                                                                           [0.08, 0.08, 0.08])))
     camera = RenderedCamera(arm, T_base_cam, T_gripper_target)
-    grippers, boards = collect_samples(arm, camera, poses, BOARD, speed=0.1, acceleration=0.5)
+    grippers, boards = collect_samples(arm, camera.capture, poses, BOARD, speed=0.1, acceleration=0.5)
     assert len(boards) >= 8
     found_cam, found_target = calibrate_eye_to_hand(grippers, boards)
     assert np.linalg.norm(found_cam[:3, 3] - T_base_cam[:3, 3]) < 0.005

@@ -40,7 +40,7 @@ def sim_frames(tmp_path_factory) -> list[Frame]:
 def replay(camera_config, frames: list[Frame], depth_scale: float = 0.001):
     pipeline = FakePipeline(frames, depth_scale=depth_scale)
     align = FakeAlign()
-    camera = RealSenseCamera(replace(camera_config, T_world_cam=frames[0].T_world_cam), pipeline=pipeline,
+    camera = RealSenseCamera(replace(camera_config, T_mount_cam=frames[0].T_world_cam), pipeline=pipeline,
                              align=align, warmup_frames=2)
     camera.start()
     return camera, pipeline, align
@@ -67,7 +67,7 @@ def test_frames_from_the_simulated_cameras_survive_the_realsense_path(config, si
 
 def test_depth_scale_and_intrinsics_come_from_the_device(config):
     K = np.array([[200.0, 0, 79.5], [0, 200.0, 59.5], [0, 0, 1]])
-    T_world_cam = config.cameras[0].T_world_cam
+    T_world_cam = config.cameras[0].T_world_cam()
     scene = box_on_table((0.52, 0.1), (0.06, 0.05, 0.1))
     frames = synthetic_frames(scene, [T_world_cam], K, (120, 160))
     camera, _, _ = replay(config.cameras[0], frames, depth_scale=0.0001)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from fakes_hardware import (EXAMPLE_CONFIG, FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, box_on_table,
-                            cell_config_for_fakes, synthetic_frames)
+                            cell_config_for_fakes, example_config, synthetic_frames, write_config)
 from hardware import ConnectionLostError, RealCell
 from hardware.config import load_config
 from hardware.ur import matrix_from_ur_pose
@@ -23,7 +23,7 @@ K = np.array([[150.0, 0, 79.5], [0, 150.0, 59.5], [0, 0, 1]])
 def recorded_frames(serial: str) -> list:
     """Ray-cast frames of the box on the table seen by the example config's camera `serial` (computed once)."""
     camera = next(c for c in load_config(EXAMPLE_CONFIG).cameras if c.serial == serial)
-    return synthetic_frames(box_on_table(BOX_XY, BOX_SIZE), [camera.T_world_cam], K, (120, 160),
+    return synthetic_frames(box_on_table(BOX_XY, BOX_SIZE), [camera.T_world_cam()], K, (120, 160),
                             names=[camera.name])
 
 
@@ -90,7 +90,7 @@ def test_capture_returns_one_calibrated_frame_per_camera(rig):
     frames = rig.cell.capture()
     assert [f.name for f in frames] == ["front", "side"]
     for frame, camera in zip(frames, rig.config.cameras):
-        np.testing.assert_allclose(frame.T_world_cam, camera.T_world_cam)
+        np.testing.assert_allclose(frame.T_world_cam, camera.T_world_cam())
         np.testing.assert_allclose(frame.K, K)
         assert frame.depth.shape == (120, 160) and (frame.depth > 0).mean() > 0.5
 
@@ -250,7 +250,7 @@ def test_gym_env_drives_the_real_cell(tmp_path):
         observation, info = env.reset(seed=0, options={"prompt": "body"})
         assert info == {"object_id": None, "prompt": "body"}
         assert set(observation) == {"prompt", "front", "side"}
-        np.testing.assert_allclose(observation["front"]["T_world_cam"], config.cameras[0].T_world_cam)
+        np.testing.assert_allclose(observation["front"]["T_world_cam"], config.cameras[0].T_world_cam())
         action = np.array([0.52, 0.1, 0.05, np.pi, 0.0, 0.0, 0.05], dtype=np.float32)
         _, reward, terminated, _, info = env.step(action)
         assert terminated and reward == 1.0 and info["outcome"]["lifted"] and info["on_part"] is None
@@ -259,3 +259,30 @@ def test_gym_env_drives_the_real_cell(tmp_path):
         env.close()
         server.stop()
     assert any(name == "stopScript" for name, _ in ur.commands)
+
+
+def test_wrist_camera_frames_follow_the_gripper(tmp_path):
+    server = FakeRobotiqServer(newline=True)
+    data = example_config()
+    data["gripper"].update(host="127.0.0.1", port=server.port)
+    data["cameras"].append({"serial": "wrist1", "name": "wrist", "mount": "wrist"})
+    data["calibration"]["T_gripper_cam"] = {"wrist1": {"xyz": [0.0, 0.08, -0.12], "rpy": [0.0, 0.0, 0.0]}}
+    path = write_config(tmp_path / "cell.yaml", data)
+    config = load_config(path)
+    ur = FakeUR(config.robot.model, config.robot.home_joints)
+    front = config.cameras[0].serial
+    cell = RealCell.from_config(path, control_factory=ur.control, receive_factory=ur.receive,
+                                pipeline_factory=lambda serial: FakePipeline(recorded_frames(front)),
+                                align_factory=FakeAlign, camera_warmup_frames=0)
+    try:
+        T_gripper_cam = config.cameras[2].T_mount_cam
+        for target in (None, top_down([0.5, 0.0, 0.3])):
+            if target is not None:
+                cell.arm.move_linear(target, 0.1, 0.5)
+            frames = cell.capture()
+            np.testing.assert_allclose(frames[0].T_world_cam, config.cameras[0].T_world_cam())
+            np.testing.assert_allclose(frames[2].T_world_cam, cell.arm.tcp_pose() @ T_gripper_cam, atol=1e-9)
+        assert frames[2].T_world_cam[2, 3] == pytest.approx(0.3 + 0.12)  # 12 cm behind the pads, pointing down
+    finally:
+        cell.close()
+        server.stop()

@@ -17,7 +17,7 @@ def test_the_example_config_loads_with_its_values():
     assert config.robot.T_flange_gripper[2, 3] == pytest.approx(0.155)
     assert config.gripper.host == config.robot.ip and config.gripper.port == 63352
     assert [c.serial for c in config.cameras] == ["012345678901", "012345678902"]
-    assert config.cameras[0].T_world_cam.shape == (4, 4)
+    assert config.cameras[0].T_world_cam().shape == (4, 4)
     np.testing.assert_allclose(config.limits.workspace_min, [0.25, -0.30, 0.0])
     assert config.motion.lift_height == pytest.approx(0.2) and config.motion.hold_time == pytest.approx(1.0)
     assert config.interactive is False
@@ -52,10 +52,14 @@ def mutate(tmp_path, change) -> ConfigError:
     (lambda d: d["workspace"].update(max=[0.2, 0.3, 0.55]), "workspace.max", "must exceed workspace.min"),
     (lambda d: d["table"].update(height=1.0), "table.height", "inside the workspace"),
     (lambda d: d.update(cameras=[]), "cameras", "non-empty list"),
-    (lambda d: d["cameras"].append({"serial": "999"}), "cameras[2].serial", "no T_world_cam for camera 999"),
+    (lambda d: d["cameras"].append({"serial": "999"}), "cameras[2].serial",
+     "no T_world_cam for table-mounted camera 999"),
     (lambda d: d["cameras"].append(dict(d["cameras"][0], name="again")), "cameras", "distinct"),
     (lambda d: d["cameras"][0].update(fps=0), "cameras[0].fps", "must be in [1, 300]"),
-    (lambda d: d["calibration"].update(file="x.yaml"), "calibration", "exactly one of"),
+    (lambda d: d["calibration"].update(file="x.yaml"), "calibration", "not both"),
+    (lambda d: d["cameras"][0].update(mount="ceiling"), "cameras[0].mount", "must be one of"),
+    (lambda d: d["cameras"][0].update(mount="wrist"), "cameras[0].serial",
+     "no T_gripper_cam for wrist-mounted camera 012345678901"),
     (lambda d: d["calibration"]["T_world_cam"]["012345678901"][0].__setitem__(0, 2.0),
      "calibration.T_world_cam.012345678901", "not a proper rotation"),
     (lambda d: d.update(interactive="yes"), "interactive", "true or false"),
@@ -95,7 +99,7 @@ def test_defaults_fill_optional_fields(tmp_path):
     assert config.gripper.port == 63352 and config.gripper.host == "192.168.1.10"
     assert config.motion.tool_speed == pytest.approx(0.1) and config.motion.lift_height == pytest.approx(0.2)
     assert config.cameras[0].serial == "12345678901" and config.cameras[0].name == "cam12345678901"
-    assert config.cameras[0].T_world_cam[:3, 3] == pytest.approx([0.0, -0.8, 0.6])
+    assert config.cameras[0].T_world_cam()[:3, 3] == pytest.approx([0.0, -0.8, 0.6])
 
 
 def test_uncalibrated_cameras_are_accepted_only_when_asked(tmp_path):
@@ -105,7 +109,7 @@ def test_uncalibrated_cameras_are_accepted_only_when_asked(tmp_path):
     with pytest.raises(ConfigError, match="calibration.file"):
         load_config(path)
     config = load_config(path, require_calibration=False)
-    np.testing.assert_allclose(config.cameras[0].T_world_cam, np.eye(4))
+    np.testing.assert_allclose(config.cameras[0].T_mount_cam, np.eye(4))
     data.pop("calibration")
     config = load_config(write_config(path, data), require_calibration=False)
     assert len(config.cameras) == 2

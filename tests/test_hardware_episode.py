@@ -93,4 +93,4 @@ def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
         axis_offset = commanded[:2, 3] - T_world_obj[:2, 3]
         assert np.linalg.norm(axis_offset) < 0.015
         assert 0.0 < commanded[2, 3] < HEIGHT  # between the table (z = 0) and the cylinder's top
-        assert 0.04 < record.width < 2 * RADIUS + 0.005  # a chord across the perceived cylinder
+        assert 0.04 < record.width < 2 * RADIUS + 0.015  # across the perceived cylinder (+ any sampler margin)
