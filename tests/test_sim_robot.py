@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim.gripper import MAX_WIDTH
-from sim.robot import HOME_Q, T_BASELINK_DHBASE, UR5Arm, dh_forward, pose_error
+from sim.robot import HOME_Q, JOINT_LOWER, JOINT_UPPER, T_BASELINK_DHBASE, UR5Arm, dh_forward, pose_error, ur_analytic_ik
 from sim.world import World
 
 
@@ -65,3 +65,15 @@ def test_gripper_stroke_matches_the_datasheet(arm):
     assert gripper.finger_asymmetry() < 1e-4
     # TCP is between the pads: ~14 cm in front of the gripper base.
     assert 0.12 < gripper.T_base_tcp(0.05)[2, 3] < 0.16
+
+
+def test_closed_form_ik_recovers_random_configurations(arm):
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        q = rng.uniform(JOINT_LOWER / 2, JOINT_UPPER / 2 - 1e-3)
+        solutions = ur_analytic_ik(dh_forward(q))
+        assert 1 <= len(solutions) <= 8
+        for solution in solutions:
+            np.testing.assert_allclose(dh_forward(solution), dh_forward(q), atol=1e-9)
+        wrapped = [np.abs((s - q + np.pi) % (2 * np.pi) - np.pi).max() for s in solutions]
+        assert min(wrapped) < 1e-6  # the configuration we started from is one of the branches
