@@ -41,6 +41,7 @@ _UR_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 
 #: How close (m, rad) the arm must end to its target for a motion to count as done.
 POSITION_TOLERANCE = 0.005
+ORIENTATION_TOLERANCE = 0.01
 JOINT_TOLERANCE = 0.01
 _POLL_PERIOD = 0.01
 
@@ -62,6 +63,12 @@ def matrix_from_ur_pose(pose: Any) -> np.ndarray:
     T[:3, :3] = Rotation.from_rotvec(pose[3:]).as_matrix()
     T[:3, 3] = pose[:3]
     return T
+
+
+def _close_to(T: np.ndarray, target: np.ndarray) -> bool:
+    """Whether pose `T` is within the position and orientation tolerances of `target`."""
+    angle = Rotation.from_matrix(T[:3, :3].T @ target[:3, :3]).magnitude()
+    return bool(np.linalg.norm(T[:3, 3] - target[:3, 3]) <= POSITION_TOLERANCE and angle <= ORIENTATION_TOLERANCE)
 
 
 def forward_kinematics(model: str, q: np.ndarray) -> np.ndarray:
@@ -224,8 +231,7 @@ class URArm:
             self._planned_T = self._gripper_pose_at(q)
             return
         self.planned_motions.append(motion)
-        self._run(motion, lambda: np.max(np.abs(self.joints() - q)) <= JOINT_TOLERANCE,
-                  duration=float(np.max(np.abs(q - start))) / speed)
+        self._run(motion, lambda: np.max(np.abs(self.joints() - q)) <= JOINT_TOLERANCE)
 
     def move_linear(self, T_world_gripper: np.ndarray, speed: float, acceleration: float) -> None:
         """moveL the gripper frame to `T_world_gripper` in a straight line; the path is checked first."""
@@ -243,8 +249,7 @@ class URArm:
             raise SafetyError(f"moveL: the controller reports {np.round(pose, 4).tolist()} as outside its safety "
                               "limits or unreachable")
         self.planned_motions.append(motion)
-        self._run(motion, lambda: np.linalg.norm(self.tcp_pose()[:3, 3] - target[:3, 3]) <= POSITION_TOLERANCE,
-                  duration=float(np.linalg.norm(target[:3, 3] - start[:3, 3])) / speed)
+        self._run(motion, lambda: _close_to(self.tcp_pose(), target))
 
     def has_ik_solution(self, T_world_gripper: np.ndarray) -> bool:
         """Whether the controller finds joint angles for this gripper pose (True in dry run: no controller)."""
@@ -267,7 +272,7 @@ class URArm:
         log.info("[dry run] %s target=%s speed=%g acceleration=%g", motion.kind,
                  np.round(motion.target, 4).tolist(), motion.speed, motion.acceleration)
 
-    def _run(self, motion: PlannedMotion, at_target: Callable[[], bool], duration: float) -> None:
+    def _run(self, motion: PlannedMotion, at_target: Callable[[], bool]) -> None:
         """Send `motion` asynchronously and watch it until it ends at its target, stops, or the link drops."""
         self.check_state()
         token = self._call(self._control, "getAsyncOperationProgress")
@@ -278,7 +283,7 @@ class URArm:
         if not accepted:
             self.check_state()
             raise MotionError(f"the controller rejected {motion.kind} to {np.round(motion.target, 4).tolist()}")
-        deadline = time.monotonic() + min(self.config.motion_timeout, 3.0 * duration + 5.0)
+        deadline = time.monotonic() + self.config.motion_timeout
         while True:
             try:
                 self.check_state()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -207,3 +209,28 @@ def test_close_stops_the_script_and_disconnects(arm, fake):
     arm.close()  # idempotent
     with pytest.raises(ConnectionLostError, match="not connected"):
         arm.tcp_pose()
+
+
+def test_motion_that_never_finishes_is_stopped_after_the_timeout(config, fake):
+    arm = URArm(replace(config.robot, motion_timeout=0.2), make_guard(config), control_factory=fake.control,
+                receive_factory=fake.receive)
+    arm.connect()
+    fake.motion_polls = 10**9
+    with pytest.raises(MotionError, match="did not finish within its time limit; the arm was stopped"):
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
+    assert fake.commands[-1][0] == "stopL"
+
+
+def test_motion_ending_with_the_wrong_orientation_is_an_error(arm, fake):
+    fake.motion_polls = 1
+    original = fake.progress
+
+    def twist_on_arrival() -> int:
+        token = original()
+        if token < 0:
+            fake.tcp = fake.tcp @ np.diag([-1.0, -1.0, 1.0, 1.0])  # right place, turned half a turn about z
+        return token
+
+    fake.progress = twist_on_arrival
+    with pytest.raises(MotionError, match="away from its target"):
+        arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
