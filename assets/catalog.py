@@ -100,8 +100,9 @@ def build_mug(p: dict) -> Built:
     z_top, z_bottom = p["handle_top"] * height, p["handle_bottom"] * height
     span = z_top - z_bottom
     thick, width = p["handle_thickness"], p["handle_width"]
-    x_out = max(r_out(z_top), r_out(z_bottom)) + p["handle_reach"]
-    corner = 0.5 * span if p["handle_style"] == "ring" else p["handle_corner"] * span
+    ring = p["handle_style"] == "ring"
+    x_out = max(r_out(z_top), r_out(z_bottom)) + p["handle_reach"] + (0.5 * span if ring else 0.0)
+    corner = 0.5 * span if ring else p["handle_corner"] * span
     path = rounded_polyline(
         [(r_out(z_top) - wall / 2, 0, z_top), (x_out, 0, z_top), (x_out, 0, z_bottom), (r_out(z_bottom) - wall / 2, 0, z_bottom)],
         [corner, corner], step=0.003,
@@ -182,13 +183,10 @@ def build_hammer(p: dict) -> Built:
     )
     style, depth, hz = p["head_style"], p["head_depth"], p["head_height"]
     if style == "mallet":
-        radius, head_len = p["face_radius"], p["head_length"]
-        head = cylinder(radius, head_len, "y", (head_x, 0, 0), 40)
-        for sign in (-1, 1):
-            head = head + cylinder(radius, 0.004, "y", (head_x, sign * (head_len / 2 + 0.002), 0), 40,
-                                   radius_end=radius - 0.003 if sign > 0 else None)
-            if sign < 0:
-                head = head + cylinder(radius - 0.003, 0.004, "y", (head_x, -head_len / 2 - 0.002, 0), 40, radius_end=radius)
+        radius, half, bevel = p["face_radius"], p["head_length"] / 2, 0.004
+        profile = [(0.0, -half), (radius - bevel, -half), (radius, -half + bevel), (radius, half - bevel),
+                   (radius - bevel, half), (0.0, half)]
+        head = revolve(profile, 40, "mallet head").rotate((90.0, 0.0, 0.0)).translate((head_x, 0.0, 0.0))
         return [("handle", handle), ("head", head)], []
     eye = box((depth, p["eye_length"], hz), (head_x, 0, 0))
     face_r = p["face_radius"]
@@ -431,7 +429,7 @@ _KNIFE = dict(blade_length=0.2, blade_height=0.046, spine_thickness=0.0024, tip_
               handle_thickness=0.018, handle_offset=-0.004, handle_swell=0.08, handle_squareness=2.6)
 _HAMMER = dict(handle_length=0.31, handle_width=0.032, handle_thickness=0.024, neck_taper=0.25, head_style="claw",
                head_depth=0.026, head_height=0.026, eye_length=0.036, face_radius=0.0145, face_neck=0.018,
-               claw_bend=0.055, claw_angle=1.1)
+               claw_bend=0.055, claw_angle=1.1, peen_neck=0.01, peen_radius=0.014, head_length=0.1)
 _SCREWDRIVER = dict(handle_length=0.1, handle_radius=0.015, front_taper=0.3, lobes=6, lobe_depth=0.1,
                     shaft_radius=0.003, shaft_length=0.12, tip_length=0.012, tip="flat")
 _SPATULA = dict(handle_length=0.16, handle_width=0.024, handle_thickness=0.015, handle_lift=0.03, blade_thickness=0.0025,
@@ -457,14 +455,61 @@ def _spec(object_id: str, category: str, base: dict, materials: tuple[str, ...],
 #: The 29 objects, one category after another; the first of each category is its reference variant.
 OBJECT_SPECS: tuple[ObjectSpec, ...] = (
     _spec("mug_classic", "mug", _MUG, ("ceramic", "ceramic")),
+    _spec("mug_tapered", "mug", _MUG, ("ceramic", "ceramic"), radius_bottom=0.032, radius_top=0.041, height=0.1,
+          handle_style="ring", handle_reach=0.004, handle_top=0.78, handle_bottom=0.3, foot_chamfer=0.004),
+    _spec("mug_espresso", "mug", _MUG, ("ceramic", "ceramic"), radius_bottom=0.029, radius_top=0.03, height=0.062,
+          wall=0.0045, floor=0.006, handle_style="ring", handle_reach=0.003, handle_top=0.76, handle_bottom=0.32,
+          handle_thickness=0.007, handle_width=0.01),
+    _spec("mug_tall", "mug", _MUG, ("ceramic", "ceramic"), radius_bottom=0.037, radius_top=0.036, height=0.12,
+          handle_reach=0.03, handle_corner=0.22, handle_top=0.85, handle_bottom=0.2, handle_width=0.015,
+          handle_thickness=0.01, foot_chamfer=0.006),
     _spec("knife_chef", "knife", _KNIFE, ("wood", "steel")),
+    _spec("knife_paring", "knife", _KNIFE, ("plastic", "steel"), blade_length=0.09, blade_height=0.02,
+          spine_thickness=0.0018, tip_drop=0.4, edge_rise_start=0.35, spine_drop_start=0.5, handle_length=0.1,
+          handle_width=0.02, handle_thickness=0.016, handle_squareness=2.2),
+    _spec("knife_bread", "knife", _KNIFE, ("wood", "steel"), blade_length=0.21, blade_height=0.028, tip_drop=0.5,
+          edge_rise_start=0.86, spine_drop_start=0.86, handle_length=0.13, handle_swell=0.04, handle_squareness=3.2),
     _spec("hammer_claw", "hammer", _HAMMER, ("wood", "steel")),
+    _spec("hammer_ballpeen", "hammer", _HAMMER, ("wood", "steel"), head_style="ballpeen", handle_length=0.3,
+          face_radius=0.015, eye_length=0.03, face_neck=0.022, neck_taper=0.2),
+    _spec("hammer_mallet", "hammer", _HAMMER, ("wood", "rubber"), head_style="mallet", handle_length=0.26,
+          handle_width=0.03, handle_thickness=0.025, neck_taper=0.1, head_depth=0.06, face_radius=0.03,
+          head_length=0.1),
     _spec("screwdriver_flat", "screwdriver", _SCREWDRIVER, ("plastic", "steel")),
+    _spec("screwdriver_phillips", "screwdriver", _SCREWDRIVER, ("rubber_grip", "steel"), tip="cross",
+          handle_length=0.105, handle_radius=0.0155, lobes=8, lobe_depth=0.08, shaft_radius=0.0028, shaft_length=0.15),
+    _spec("screwdriver_stubby", "screwdriver", _SCREWDRIVER, ("plastic", "steel"), handle_length=0.06,
+          handle_radius=0.017, front_taper=0.25, shaft_length=0.04, tip_length=0.008),
     _spec("spatula_turner", "spatula", _SPATULA, ("plastic", "nylon")),
+    _spec("spatula_slotted", "spatula", _SPATULA, ("wood", "nylon"), slots=3, blade_width=0.075, blade_length=0.11,
+          handle_length=0.17, handle_width=0.026, handle_thickness=0.017),
+    _spec("spatula_scraper", "spatula", _SPATULA, ("plastic", "silicone"), blade_width=0.045, blade_length=0.085,
+          blade_thickness=0.004, blade_squareness=2.8, handle_width=0.02, handle_thickness=0.013, neck_width=0.014,
+          handle_lift=0.025),
     _spec("bottle_water", "bottle", _BOTTLE, ("hdpe_cap", "pet_bottle_bulk")),
+    _spec("bottle_beer", "bottle", _BOTTLE, ("tin_cap", "glass_bottle_bulk"), radius=0.031, height=0.23,
+          shoulder_start=0.55, neck_start=0.72, ring_height=0.95, cap_radius=0.0148, cap_height=0.007, cap_ridges=21),
+    _spec("bottle_sauce", "bottle", _BOTTLE, ("hdpe_cap", "pet_bottle_bulk"), radius=0.026, height=0.19,
+          neck_radius=0.011, shoulder_start=0.7, neck_start=0.82, ring_height=0.9, cap_radius=0.0145,
+          cap_height=0.025, cap_ridges=30),
+    _spec("bottle_jar", "bottle", _BOTTLE, ("hdpe_cap", "jar_bulk"), radius=0.037, height=0.11, neck_radius=0.03,
+          shoulder_start=0.75, neck_start=0.84, ring_height=0.86, cap_radius=0.0335, cap_height=0.018, cap_ridges=60),
     _spec("frying_pan_24", "frying_pan", _PAN, ("bakelite", "aluminium")),
+    _spec("frying_pan_20", "frying_pan", _PAN, ("bakelite", "aluminium"), radius_bottom=0.07, radius_top=0.092,
+          height=0.04, handle_length=0.16, handle_width=0.024, handle_thickness=0.015),
+    _spec("frying_pan_crepe", "frying_pan", _PAN, ("wood", "aluminium"), radius_bottom=0.1, radius_top=0.112,
+          height=0.02, handle_height=0.65, handle_length=0.2, handle_angle=8.0),
     _spec("toothbrush_classic", "toothbrush", _TOOTHBRUSH, ("plastic", "nylon")),
+    _spec("toothbrush_ergonomic", "toothbrush", _TOOTHBRUSH, ("rubber_grip", "nylon"), bow=0.006, grip_swell=0.35,
+          handle_length=0.155, handle_width=0.014, head_length=0.03),
+    _spec("toothbrush_kids", "toothbrush", _TOOTHBRUSH, ("plastic", "nylon"), handle_length=0.11, handle_width=0.017,
+          handle_thickness=0.012, grip_swell=0.3, head_length=0.024, head_width=0.011, bristle_height=0.009,
+          neck_taper=0.4),
     _spec("wine_glass_red", "wine_glass", _GLASS, ("glass", "glass", "glass")),
+    _spec("wine_glass_flute", "wine_glass", _GLASS, ("glass", "glass", "glass"), bowl_radius=0.028, bowl_height=0.13,
+          widest=0.35, rim_radius=0.024, stem_length=0.08, base_radius=0.032),
+    _spec("wine_glass_coupe", "wine_glass", _GLASS, ("glass", "glass", "glass"), bowl_radius=0.05, bowl_height=0.045,
+          widest=0.9, rim_radius=0.049, stem_length=0.09, base_radius=0.038),
 )
 
 CATEGORY_PARTS: dict[str, tuple[str, ...]] = {

@@ -68,7 +68,7 @@ def gallery_png(models: Sequence[ObjectModel], path: str | os.PathLike, columns:
     for i, model in enumerate(models):
         x, y = (i % columns) * tile, (i // columns) * (tile + caption)
         sheet.paste(Image.fromarray(render_object(model, tile)), (x, y))
-        draw.text((x + 6, y + tile + 2), model.object_id, fill=(0, 0, 0))
+        draw.text((x + 6, y + tile + 2), f"{model.object_id}  ({model.mesh.extents.max() * 1000:.0f} mm)", fill=(0, 0, 0))
         cursor = x + 6
         for k, prompt in enumerate(model.prompts):
             colour = tuple(int(c) for c in PART_COLOURS[k % len(PART_COLOURS)])

@@ -11,12 +11,14 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import manifold3d as mf
 import numpy as np
 import trimesh
+from tqdm import tqdm
 
 from assets.catalog import BUILDERS, CATEGORY_PARTS, MATERIALS, OBJECT_SPECS, ObjectSpec
 from seggrasp.io import atomic_write_json, atomic_write_text
@@ -28,8 +30,8 @@ from seggrasp.objects import (
     combine_mass_properties,
     convex_decomposition,
     mass_properties,
+    obj_group_names,
     obj_text,
-    read_obj_arrays,
     urdf_text,
     write_collision_obj,
 )
@@ -44,8 +46,10 @@ MANIFEST_PATH = ASSETS_DIR / "manifest.json"
 JITTER = 0.03
 #: Decimal places of vertex coordinates in the written OBJ files (1e-8 m).
 VERTEX_DECIMALS = 8
-#: CoACD settings for the twin's collision models: moderate concavity threshold, a bounded number of hulls.
-TWIN_COLLISION = CollisionConfig(threshold=0.06, max_hulls=24, resolution=2000, mcts_iterations=100, preprocess="off", seed=0)
+#: CoACD settings for the twin's collision models, applied to each part's solid separately (so no hull straddles
+#: a part boundary and a contact with hull k touches part `hull_parts[k]`): moderate concavity threshold, at most
+#: `max_hulls` hulls per part. The meshes are clean 2-manifolds, so CoACD's remeshing pre-process is off.
+TWIN_COLLISION = CollisionConfig(threshold=0.06, max_hulls=16, resolution=2000, mcts_iterations=100, preprocess="off", seed=0)
 #: Friction model for PyBullet: small spinning/rolling friction so round objects come to rest.
 SPINNING_FRICTION = 0.002
 ROLLING_FRICTION = 0.0002
@@ -65,9 +69,8 @@ class GeneratedMesh:
 
 
 def jittered_params(spec: ObjectSpec, seed: int) -> dict:
-    """The spec's parameters with every float scaled by 1 + U(-JITTER, JITTER), seeded by (seed, object index)."""
-    index = next(i for i, s in enumerate(OBJECT_SPECS) if s.object_id == spec.object_id)
-    rng = np.random.default_rng([seed, index])
+    """The spec's parameters with every float scaled by 1 + U(-JITTER, JITTER), seeded by (seed, object id)."""
+    rng = np.random.default_rng([seed, zlib.crc32(spec.object_id.encode())])
     params = {}
     for key in sorted(spec.params):
         value = spec.params[key]
@@ -155,11 +158,15 @@ def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: b
     atomic_write_text(out_dir / "labels.json", labels_text)
     collision_path = out_dir / "collision.obj"
     if collision:
-        hulls = convex_decomposition(generated.mesh, TWIN_COLLISION)
-        write_collision_obj(collision_path, hulls, VERTEX_DECIMALS)
+        hulls, names = [], []
+        for part, piece in zip(generated.labels.parts, generated.part_volumes):
+            part_hulls = convex_decomposition(piece, TWIN_COLLISION)
+            names += [f"{part}_{len(hulls) + k}" for k in range(len(part_hulls))]
+            hulls += part_hulls
+        write_collision_obj(collision_path, hulls, VERTEX_DECIMALS, names)
     elif not collision_path.is_file():
         raise ValueError(f"{spec.object_id}: no collision model at {collision_path}; generate with collision=True")
-    n_hulls = len(read_obj_arrays(collision_path))
+    hull_parts = [generated.labels.parts.index(name.rsplit("_", 1)[0]) for name in obj_group_names(collision_path)]
     urdf = urdf_text(spec.object_id, "mesh.obj", "collision.obj", props, friction,
                      spinning_friction=SPINNING_FRICTION, rolling_friction=ROLLING_FRICTION)
     atomic_write_text(out_dir / "object.urdf", urdf)
@@ -172,14 +179,15 @@ def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: b
         "prompts": generated.labels.parts,
         "materials": list(spec.materials),
         "part_masses": part_masses,
-        "mass": round(props.mass, 6),
+        "mass": float(f"{props.mass:.8g}"),  # the URDF's value
         "friction": friction,
-        "center_of_mass": [round(float(c), 8) for c in props.center_of_mass],
+        "center_of_mass": [float(f"{c:.8g}") for c in props.center_of_mass],  # the URDF's value
         "inertia": [[float(f"{c:.6e}") for c in row] for row in props.inertia],
         "dimensions": [round(float(d), 6) for d in mesh.extents],
         "n_vertices": int(len(mesh.vertices)),
         "n_faces": int(len(mesh.faces)),
-        "n_hulls": n_hulls,
+        "n_hulls": len(hull_parts),
+        "hull_parts": hull_parts,
         "keep_open": [[round(float(c), 6) for c in point] for point in generated.keep_open],
         "files": {
             "mesh": f"{rel}/mesh.obj",
@@ -200,6 +208,26 @@ def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: b
     }
 
 
+def _manifest(records: dict[str, dict], seed: int) -> dict:
+    order = [s.object_id for s in OBJECT_SPECS if s.object_id in records]
+    return {
+        "name": "SegGraspSet twin",
+        "generator_version": GENERATOR_VERSION,
+        "seed": seed,
+        "collision": {
+            "method": "coacd",
+            "threshold": TWIN_COLLISION.threshold,
+            "max_hulls": TWIN_COLLISION.max_hulls,
+            "resolution": TWIN_COLLISION.resolution,
+            "mcts_iterations": TWIN_COLLISION.mcts_iterations,
+            "preprocess": TWIN_COLLISION.preprocess,
+            "seed": TWIN_COLLISION.seed,
+        },
+        "frame": "resting pose, z up; footprint (bounding-box x/y) centre at the origin, lowest point at z = 0",
+        "objects": [records[i] for i in order],
+    }
+
+
 def generate_set(
     seed: int = 0, object_ids: list[str] | None = None, root: Path = ASSETS_DIR, collision: bool = True
 ) -> dict:
@@ -215,30 +243,14 @@ def generate_set(
     manifest_path = root / "manifest.json"
     previous = {}
     if manifest_path.is_file():
-        previous = {r["id"]: r for r in json.loads(manifest_path.read_text())["objects"]}
-    try:
-        from tqdm import tqdm
-    except ImportError:  # pragma: no cover - tqdm is a dependency
-        tqdm = None
-    iterator = tqdm(specs, desc="objects", unit="obj") if tqdm else specs
-    for spec in iterator:
+        existing = json.loads(manifest_path.read_text())
+        if existing.get("seed") == seed:  # records of another seed are not kept
+            previous = {r["id"]: r for r in existing["objects"]}
+    if not specs:
+        raise ValueError("no objects to generate")
+    manifest = {}
+    for spec in tqdm(specs, desc="objects", unit="obj"):
         previous[spec.object_id] = generate_object(spec, root / "objects" / spec.object_id, seed, collision)
-    order = [s.object_id for s in OBJECT_SPECS if s.object_id in previous]
-    manifest = {
-        "name": "SegGraspSet twin",
-        "generator_version": GENERATOR_VERSION,
-        "seed": seed,
-        "collision": {
-            "method": "coacd",
-            "threshold": TWIN_COLLISION.threshold,
-            "max_hulls": TWIN_COLLISION.max_hulls,
-            "resolution": TWIN_COLLISION.resolution,
-            "mcts_iterations": TWIN_COLLISION.mcts_iterations,
-            "preprocess": TWIN_COLLISION.preprocess,
-            "seed": TWIN_COLLISION.seed,
-        },
-        "frame": "resting pose, z up; footprint (bounding-box x/y) centre at the origin, lowest point at z = 0",
-        "objects": [previous[i] for i in order],
-    }
-    atomic_write_json(manifest_path, manifest)
+        manifest = _manifest(previous, seed)
+        atomic_write_json(manifest_path, manifest)  # after every object: readers never see stale hashes for long
     return manifest

@@ -68,18 +68,21 @@ class MassProperties:
 
 @dataclass(frozen=True)
 class CollisionConfig:
-    """CoACD settings: concavity threshold (fraction of the bounding-box diagonal), hull cap, voxel resolution."""
+    """CoACD settings: concavity threshold (fraction of the bounding-box diagonal), hull cap, sampling resolution,
+    MCTS iterations, manifold pre-processing ("on" for scans, "off" for clean manifold meshes) and, for large scans,
+    a face budget the mesh is decimated to first (collision shapes need no fine detail; CoACD time grows with it)."""
 
     threshold: float = 0.06
     max_hulls: int = 24
     resolution: int = 2000
     mcts_iterations: int = 100
-    preprocess: str = "auto"
+    preprocess: str = "on"
+    max_faces: int | None = None
     seed: int = 0
 
     def key(self) -> str:
         return (f"t{self.threshold:g}-h{self.max_hulls}-r{self.resolution}-i{self.mcts_iterations}"
-                f"-p{self.preprocess}-s{self.seed}")
+                f"-p{self.preprocess}-f{self.max_faces}-s{self.seed}")
 
 
 def mass_properties(solid: trimesh.Trimesh, density: float) -> MassProperties:
@@ -114,6 +117,10 @@ def convex_decomposition(mesh: trimesh.Trimesh, config: CollisionConfig = Collis
     """Approximate convex decomposition with CoACD; each piece is returned as its convex hull."""
     import coacd
 
+    if config.preprocess not in ("on", "off"):
+        raise ValueError(f"CollisionConfig.preprocess must be 'on' or 'off', got {config.preprocess!r}")
+    if config.max_faces is not None and len(mesh.faces) > config.max_faces:
+        mesh = mesh.simplify_quadric_decimation(face_count=config.max_faces)
     coacd.set_log_level("error")
     result = coacd.run_coacd(
         coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
@@ -139,16 +146,29 @@ def obj_text(vertices: np.ndarray, faces: np.ndarray, decimals: int = 8) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_collision_obj(path: str | os.PathLike, hulls: Sequence[trimesh.Trimesh], decimals: int = 8) -> None:
-    """Write convex hulls as ONE OBJ with an `o hull_k` group per hull (PyBullet loads it as a compound)."""
+def write_collision_obj(
+    path: str | os.PathLike, hulls: Sequence[trimesh.Trimesh], decimals: int = 8, names: Sequence[str] | None = None
+) -> None:
+    """Write convex hulls as ONE OBJ with an `o <name>` group per hull (default names hull_0, hull_1, ...).
+
+    PyBullet loads such a file (as a URDF collision mesh or GEOM_MESH) as a compound of one convex hull per group.
+    """
+    names = [f"hull_{k}" for k in range(len(hulls))] if names is None else list(names)
+    if len(names) != len(hulls) or any(not n or " " in n for n in names):
+        raise ValueError(f"need one non-empty group name without spaces per hull, got {names}")
     chunks, offset = [], 0
     fmt = f"v %.{decimals}f %.{decimals}f %.{decimals}f"
-    for k, hull in enumerate(hulls):
-        chunks.append(f"o hull_{k}")
+    for name, hull in zip(names, hulls):
+        chunks.append(f"o {name}")
         chunks += [fmt % tuple(v) for v in np.asarray(hull.vertices, dtype=np.float64)]
         chunks += ["f %d %d %d" % tuple(f) for f in np.asarray(hull.faces, dtype=np.int64) + 1 + offset]
         offset += len(hull.vertices)
     atomic_write_text(path, "\n".join(chunks) + "\n")
+
+
+def obj_group_names(path: str | os.PathLike) -> list[str]:
+    """The `o` group names of an OBJ file, in file order."""
+    return [line[2:].strip() for line in Path(path).read_text().splitlines() if line.startswith("o ")]
 
 
 def read_obj_arrays(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -306,35 +326,56 @@ def load_asset_set(categories: str | Sequence[str] | None = None, assets_dir: Pa
 
 
 def _voxel_mass_properties(mesh: trimesh.Trimesh, density: float) -> tuple[MassProperties, float]:
-    """Mass properties of the filled voxelisation of a (possibly open) surface; returns them and the voxel pitch."""
+    """Mass properties of the filled voxelisation of a (possibly open) surface; returns them and the voxel pitch.
+
+    Voxels cut by the surface count half (the surface passes through them on average halfway), which removes most
+    of the bias a full surface layer would add to thin-walled objects.
+    """
     pitch = float(mesh.extents.max()) / VOXELS_PER_EXTENT
-    grid = mesh.voxelized(pitch).fill()
-    centres = np.asarray(grid.points, dtype=np.float64)
+    surface = mesh.voxelized(pitch)
+    filled = surface.copy().fill()
+    centres = np.asarray(filled.points, dtype=np.float64)
     if len(centres) == 0:
         raise ValueError("cannot estimate a volume: the voxelised mesh is empty")
-    cell_mass = density * pitch**3
-    mass = cell_mass * len(centres)
-    com = centres.mean(axis=0)
+    filled_index = np.asarray(filled.sparse_indices, dtype=np.int64)
+    surface_index = np.asarray(surface.sparse_indices, dtype=np.int64)
+    dims = np.maximum(filled_index.max(axis=0), surface_index.max(axis=0)) + 1
+    on_surface = np.isin(np.ravel_multi_index(filled_index.T, dims), np.ravel_multi_index(surface_index.T, dims))
+    weights = np.where(on_surface, 0.5, 1.0)
+    cell_volume = pitch**3
+    mass = density * cell_volume * float(weights.sum())
+    com = (weights[:, None] * centres).sum(axis=0) / weights.sum()
     d = centres - com
+    point_masses = density * cell_volume * weights
     # point masses plus each cube's own inertia (m a^2 / 6 about each axis)
-    inertia = cell_mass * (np.eye(3) * np.einsum("ij,ij->", d, d) - d.T @ d) + np.eye(3) * mass * pitch**2 / 6.0
+    inertia = np.eye(3) * np.einsum("i,ij,ij->", point_masses, d, d) - (d * point_masses[:, None]).T @ d
+    inertia += np.eye(3) * mass * pitch**2 / 6.0
     return MassProperties(mass=float(mass), center_of_mass=com, inertia=inertia), pitch
 
 
-def estimate_mass_properties(mesh: trimesh.Trimesh, density: float) -> tuple[MassProperties, str]:
-    """Mass properties of a scanned surface and a note saying how they were obtained.
+def _boundary_edge_count(mesh: trimesh.Trimesh) -> int:
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return int((counts == 1).sum())
 
-    Watertight meshes use the exact enclosed volume; open scans are closed by filling small holes if that makes
-    them watertight, otherwise their filled voxelisation is used (an over-estimate of up to one voxel layer).
+
+def estimate_mass_properties(mesh: trimesh.Trimesh, density: float) -> tuple[MassProperties, str]:
+    """Mass properties of a (possibly scanned) surface and a note saying how they were obtained.
+
+    Watertight meshes use the exact enclosed volume. A closed surface (no boundary edges) that is not a clean
+    2-manifold (a few non-manifold edges, typical of scans) still encloses a well-defined volume, so the exact
+    divergence-theorem integrals are used. Open scans are closed by filling small holes if that makes them
+    watertight; otherwise their filled voxelisation is used (an estimate).
     """
     if mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0:
         return mass_properties(mesh, density), "exact volume of the watertight mesh"
+    if _boundary_edge_count(mesh) == 0 and mesh.is_winding_consistent and mesh.volume > 0:
+        return mass_properties(mesh, density), "volume of the closed (but not 2-manifold) surface"
     patched = mesh.copy()
     patched.fill_holes()
     if patched.is_watertight and patched.is_winding_consistent and patched.volume > 0:
         return mass_properties(patched, density), "volume after filling holes in the scan"
     props, pitch = _voxel_mass_properties(mesh, density)
-    return props, f"mesh is not watertight: volume from its filled voxelisation (pitch {pitch * 1000:.2f} mm)"
+    return props, f"mesh is open: volume from its filled voxelisation (pitch {pitch * 1000:.2f} mm)"
 
 
 def load_external_object(
@@ -348,7 +389,7 @@ def load_external_object(
     object_id: str | None = None,
     category: str = "external",
     collision: CollisionConfig = CollisionConfig(
-        threshold=0.08, max_hulls=16, resolution=1000, mcts_iterations=60, preprocess="on"
+        threshold=0.08, max_hulls=16, resolution=1000, mcts_iterations=60, preprocess="on", max_faces=4000
     ),
 ) -> ObjectModel:
     """Make any mesh file a physical object of the same kind as the twin's.
