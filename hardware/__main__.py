@@ -82,6 +82,8 @@ def _check(args: argparse.Namespace) -> None:
 
 
 def _read_poses(path: Path) -> list[np.ndarray]:
+    if not path.is_file():
+        raise ValueError(f"poses file {path} not found")
     data = yaml.safe_load(path.read_text())
     if not isinstance(data, dict) or not isinstance(data.get("poses"), list) or not data["poses"]:
         raise ValueError(f"{path}: expected 'poses:' with a list of 4x4 matrices or {{xyz, rpy}} entries")
@@ -89,7 +91,10 @@ def _read_poses(path: Path) -> list[np.ndarray]:
 
 
 def _calibrate(args: argparse.Namespace) -> None:
-    columns, rows = (int(n) for n in args.board.lower().split("x"))
+    try:
+        columns, rows = (int(n) for n in args.board.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--board must be COLUMNSxROWS inner corners such as 7x6, got {args.board!r}") from None
     board = Checkerboard(columns, rows, args.square)
     poses = _read_poses(args.poses)
     config = load_config(args.config, require_calibration=False)

@@ -44,6 +44,15 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--dry-run"]) == 1
     assert "give --out" in capsys.readouterr().err
+    assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
+                 str(tmp_path / "poses.yaml"), "--square", "0.03", "--board", "7by6", "--dry-run"]) == 1
+    assert "--board must be COLUMNSxROWS" in capsys.readouterr().err
+    assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
+                 str(tmp_path / "absent.yaml"), "--square", "0.03", "--dry-run"]) == 1
+    assert "poses file" in capsys.readouterr().err
+    assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "999", "--poses", str(tmp_path / "poses.yaml"),
+                 "--square", "0.03", "--out", str(tmp_path / "c.yaml"), "--dry-run"]) == 1
+    assert "camera 999 is not in" in capsys.readouterr().err
 
 
 def test_calibration_dry_run_checks_the_tour(tmp_path, capsys):
