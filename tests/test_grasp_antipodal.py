@@ -43,7 +43,11 @@ def test_poses_are_rigid_and_centred_between_the_contacts(object_and_grasps) -> 
     rotations = g.poses[:, :3, :3]
     assert np.allclose(rotations @ rotations.transpose(0, 2, 1), np.eye(3), atol=1e-9)
     assert np.allclose(np.linalg.det(rotations), 1.0)
-    assert np.allclose(g.poses[:, :3, 3], g.contacts.mean(axis=1), atol=1e-9)
+    # the contacts' midpoint lies on the approach axis, at a depth from the pad centres the sampler may choose
+    midpoint_local = np.einsum("nji,nj->ni", rotations, g.contacts.mean(axis=1) - g.poses[:, :3, 3])
+    assert np.allclose(midpoint_local[:, :2], 0.0, atol=1e-9)
+    depths = AntipodalConfig().contact_depths
+    assert np.all(np.isclose(midpoint_local[:, 2:3], np.asarray(depths)[None, :], atol=1e-9).any(axis=1))
     closing = g.contacts[:, 1] - g.contacts[:, 0]
     assert np.allclose(np.linalg.norm(closing, axis=1), g.widths)
     # x axis of the gripper is the closing direction (finger to finger)
@@ -95,6 +99,16 @@ def test_object_wider_than_the_stroke_has_no_grasps() -> None:
     assert len(AntipodalSampler().generate(cube, seed=0)) == 0
 
 
+def test_flat_bar_on_the_table_is_grasped_from_above_near_the_fingertips() -> None:
+    bar = _on_table(trimesh.creation.box((0.2, 0.02, 0.016)))
+    g = AntipodalSampler().generate(bar, seed=0, table_plane=TABLE)
+    assert len(g) > 0
+    # too low for the pad centres: every grasp holds the bar between the pad centres and the fingertips
+    midpoint_local = np.einsum("nji,nj->ni", g.poses[:, :3, :3], g.contacts.mean(axis=1) - g.poses[:, :3, 3])
+    assert midpoint_local[:, 2].min() > 0.0
+    assert np.all(g.poses[:, 2, 2] < -0.5)  # from above
+
+
 def test_ring_grasps_do_not_close_across_the_hole() -> None:
     ring = _on_table(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.05, sections=64))
     g = AntipodalSampler().generate(ring, seed=1, table_plane=TABLE)
@@ -118,7 +132,7 @@ def test_graspset_transform_and_subset() -> None:
     T[:3, :3] = trimesh.transformations.rotation_matrix(0.7, [0, 0, 1])[:3, :3]
     T[:3, 3] = [0.4, -0.1, 0.2]
     moved = g.transformed(T)
-    assert np.allclose(moved.poses[:, :3, 3], moved.contacts.mean(axis=1))
+    assert np.allclose(moved.contacts, g.contacts @ T[:3, :3].T + T[:3, 3])
     assert np.allclose(moved.poses, T @ g.poses)
     top = g.subset(np.arange(3))
     assert len(top) == 3 and np.array_equal(top.scores, g.scores[:3])

@@ -4,10 +4,12 @@
 2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
-5. Reject poses whose finger or palm boxes contain object surface points (a dense, even-ish surface sample) or
-   whose boxes dip below an optional table plane.
-6. Score = weighted sum of antipodality, closeness of the grasp centre to the centre of mass and, when a table
-   plane is given, how much the approach points down onto the table (top-down grasps reach and lift best).
+5. Reject poses whose finger, palm or wrist boxes contain object surface points (a dense surface sample) or dip
+   below an optional table plane. A rejected pose is retried pulled back along its approach, so that the contacts
+   sit between the pad centres and the fingertips (`contact_depths`): flat objects on a table need that.
+6. Score = weighted sum of antipodality, closeness of the contacts' midpoint to the centre of mass, when a table
+   plane is given how much the approach points down onto the table (top-down grasps reach and lift best), minus
+   a little for contacts away from the pad centres.
 """
 
 from __future__ import annotations
@@ -26,24 +28,28 @@ LOG = logging.getLogger(__name__)
 RAY_EPSILON = 1e-5
 #: Grasp candidates whose collision test is evaluated in one vectorised block.
 COLLISION_CHUNK = 256
+#: Every this many collision points form the sparse first pass of the collision test.
+COARSE_STRIDE = 8
 
 
 @dataclass(frozen=True)
 class AntipodalConfig:
     """Sampler parameters. `friction_coefficient` sets the friction-cone half-angle atan(mu)."""
 
-    n_surface_samples: int = 1000
+    n_surface_samples: int = 3000
     n_approaches: int = 8
     friction_coefficient: float = 0.5
-    min_width: float = 0.003
+    min_width: float = 0.001
     width_margin: float = 0.005  # contact distance must stay this far below the stroke
     collision_point_spacing: float = 0.004
     min_collision_points: int = 1500
     max_collision_points: int = 6000
-    table_clearance: float = 0.005
+    table_clearance: float = 0.0035
+    contact_depths: tuple[float, ...] = (0.0, 0.009, 0.018)  # contacts this far from the pad centres, tipwards
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
     weight_top_down: float = 0.2
+    weight_contact_depth: float = 0.1
     max_grasps: int | None = None
 
     def __post_init__(self) -> None:
@@ -51,6 +57,8 @@ class AntipodalConfig:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
         if self.n_surface_samples < 1 or self.n_approaches < 1:
             raise ValueError("n_surface_samples and n_approaches must be at least 1")
+        if not self.contact_depths or min(self.contact_depths) < 0:
+            raise ValueError(f"contact_depths must be non-negative and not empty, got {self.contact_depths}")
 
 
 class AntipodalSampler:
@@ -95,27 +103,36 @@ class AntipodalSampler:
         p, q, axis, width = p[ok], q[ok], axis[ok], width[ok]
         antipodality = 1.0 - np.maximum(angle_p[ok], angle_q[ok]) / half_angle
 
-        poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng)
-        k = cfg.n_approaches
-        pair_of = np.repeat(np.arange(len(p)), k)
+        axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
+        pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
-
-        free = np.ones(len(poses), dtype=bool)
-        if plane is not None:
-            free &= self._above_plane(poses, openings, plane, cfg.table_clearance)
         cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
-        candidates = np.flatnonzero(free)
-        free[candidates] = self._collision_free(poses[candidates], openings[candidates], cloud)
+        # each pose first with the contacts at the pad centres, then pulled back so they sit nearer the fingertips
+        depth_index = np.full(len(axis_poses), -1)
+        for index, depth in enumerate(cfg.contact_depths):
+            todo = np.flatnonzero(depth_index < 0)
+            shifted = axis_poses[todo].copy()
+            shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
+            free = np.ones(len(todo), dtype=bool)
+            if plane is not None:
+                free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
+            free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
+            depth_index[todo[free]] = index
+        free = depth_index >= 0
         if not free.any():
             LOG.info("antipodal sampler: every candidate pose collides")
             return GraspSet.empty()
+        contact_depth = np.asarray(cfg.contact_depths, dtype=np.float64)[np.maximum(depth_index, 0)]
+        poses = axis_poses.copy()
+        poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
 
         com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
-        centre_distance = np.linalg.norm(poses[:, :3, 3] - com, axis=1)
+        centre_distance = np.linalg.norm(axis_poses[:, :3, 3] - com, axis=1)
         closeness = 1.0 - np.clip(centre_distance / radius, 0.0, 1.0)
         score = cfg.weight_antipodality * antipodality[pair_of] + cfg.weight_center_of_mass * closeness
+        score -= cfg.weight_contact_depth * contact_depth / max(max(cfg.contact_depths), 1e-9)
         if plane is not None:
             top_down = np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
             score = score + cfg.weight_top_down * top_down
@@ -127,11 +144,15 @@ class AntipodalSampler:
         return grasps
 
     def _collision_free(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-        """True where no cloud point lies inside a finger, the palm or the wrist (vectorised over chunks)."""
+        """True where no cloud point lies inside a finger, the palm or the wrist. A sparse subset of the cloud
+        rejects most colliding poses cheaply; the survivors are checked against the whole cloud."""
+        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE])
+        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud)
+        return free
+
+    def _cloud_outside_gripper(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses)."""
         g = self.gripper
-        # the fingers' x range depends on the opening: test them through |x| against [half, half + thickness]
-        fixed = g.boxes(0.0)[2:].astype(np.float32)  # palm, wrist
-        finger_lo, finger_hi = g.palm_top, g.tip_beyond_origin
         free = np.ones(len(poses), dtype=bool)
         cloud32 = cloud.astype(np.float32)
         for start in range(0, len(poses), COLLISION_CHUNK):
@@ -140,12 +161,12 @@ class AntipodalSampler:
             rotations = chunk[:, :3, :3]
             # cloud in each gripper frame: R^T (x - t)  ->  (G, M, 3)
             local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
-            x, y, z = local[..., 0], local[..., 1], local[..., 2]
-            ax = np.abs(x)
-            hit = (ax >= half) & (ax <= half + g.finger_thickness) & (np.abs(y) <= 0.5 * g.finger_width)
-            hit &= (z >= finger_lo) & (z <= finger_hi)
-            for lo, hi in fixed:
-                hit |= (x >= lo[0]) & (x <= hi[0]) & (y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])
+            ax, ay, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
+            hit = np.zeros(ax.shape, dtype=bool)
+            for inner, outer, half_y, z_min, z_max in g.finger_boxes:  # mirrored: test |x|
+                hit |= (ax >= half + inner) & (ax <= half + outer) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
+            for half_x, half_y, z_min, z_max in g.centre_boxes:
+                hit |= (ax <= half_x) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
             free[start : start + COLLISION_CHUNK] = ~hit.any(axis=1)
         return free
 
@@ -154,7 +175,7 @@ class AntipodalSampler:
         ok = np.ones(len(poses), dtype=bool)
         for opening in np.unique(openings):
             sel = openings == opening
-            boxes = self.gripper.boxes(float(opening))  # (3, 2, 3)
+            boxes = self.gripper.boxes(float(opening))  # (B, 2, 3)
             corners = np.array([[bx[i, 0], bx[j, 1], bx[k, 2]] for bx in boxes for i in (0, 1) for j in (0, 1) for k in (0, 1)])
             world = np.einsum("gij,mj->gmi", poses[sel, :3, :3], corners) + poses[sel, None, :3, 3]
             heights = world @ plane[:3] + plane[3]
@@ -185,14 +206,24 @@ def _opposite_contacts(
     return points[ray_index], locations, normals[ray_index], face_normals[tri_index]
 
 
-def _poses_around_axes(p: np.ndarray, q: np.ndarray, axis: np.ndarray, k: int, rng: np.random.Generator) -> np.ndarray:
-    """k poses per pair: x = grasp axis, z = approach rotated about x at evenly spaced, randomly offset angles."""
+def _poses_around_axes(
+    p: np.ndarray, q: np.ndarray, axis: np.ndarray, k: int, rng: np.random.Generator, down: np.ndarray | None
+) -> np.ndarray:
+    """k poses per pair: x = grasp axis, z = approach rotated about x at evenly spaced angles.
+
+    With a `down` direction (into the table) the first approach of every pair is the one closest to straight
+    down, so grasps that must come from above (flat objects) are never missed; otherwise the angles start at a
+    random offset.
+    """
     helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
     u = np.cross(axis, helper)
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     v = np.cross(axis, u)
-    offsets = rng.random(len(p))
-    angles = 2.0 * np.pi * (np.arange(k)[None, :] + offsets[:, None]) / k  # (P, k)
+    if down is None:
+        offsets = 2.0 * np.pi * rng.random(len(p))
+    else:
+        offsets = np.arctan2(v @ down, u @ down)  # angle of `down` projected onto the plane normal to the axis
+    angles = offsets[:, None] + 2.0 * np.pi * np.arange(k)[None, :] / k  # (P, k)
     cos, sin = np.cos(angles)[..., None], np.sin(angles)[..., None]
     z = cos * u[:, None, :] + sin * v[:, None, :]
     x = np.broadcast_to(axis[:, None, :], z.shape)

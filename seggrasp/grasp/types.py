@@ -17,27 +17,28 @@ import trimesh
 class GripperGeometry:
     """Box model of a parallel gripper for collision checks, in the gripper frame (metres).
 
-    Defaults are the Robotiq 2F-85 as the simulated one measures (link bounding boxes with the gripper frame at
-    the origin, sim/gripper.py): 85 mm stroke; the origin is between the pad centres and the fingertips reach
-    `tip_beyond_origin` past it along +z. Boxes, all conservative:
+    Defaults are the Robotiq 2F-85 as the simulated one is shaped (ray-probed profile of its collision geometry,
+    gripper frame at the origin, sim/gripper.py): 85 mm stroke, origin between the pad centres, fingertips
+    `tip_beyond_origin` past it along +z.
 
-    - two fingers (pad + inner finger + outer finger tip): x from the pre-grasp opening outwards by
-      `finger_thickness`, |y| <= `finger_width` / 2, z from `palm_top` to `tip_beyond_origin`;
-    - the palm (knuckles and gripper body): |x| <= `palm_width` / 2, |y| <= `palm_thickness` / 2,
-      z from `palm_top - palm_depth` to `palm_top`; nothing may sit deeper than `palm_top` between the fingers;
-    - the wrist behind it: |x|, |y| <= `wrist_width` / 2 over `wrist_depth`.
+    - `finger_boxes` move with the fingers; each is (inner x, outer x, half y, z min, z max) with x measured
+      outwards from the finger's inner face at half the opening (mirrored for the other finger): the pad and the
+      tip of the finger, then its wedge-shaped base that leans inwards toward the knuckles;
+    - `centre_boxes` are fixed and centred on the z axis; each is (half x, half y, z min, z max): the knuckles,
+      the gripper body and the wrist behind it.
     """
 
     max_opening: float = 0.085
-    finger_thickness: float = 0.030
-    finger_width: float = 0.036
     tip_beyond_origin: float = 0.020
-    palm_top: float = -0.040
-    palm_width: float = 0.160
-    palm_thickness: float = 0.085
-    palm_depth: float = 0.110
-    wrist_width: float = 0.090
-    wrist_depth: float = 0.120
+    finger_boxes: tuple[tuple[float, float, float, float, float], ...] = (
+        (0.0, 0.024, 0.012, -0.020, 0.020),
+        (-0.008, 0.036, 0.018, -0.045, -0.020),
+    )
+    centre_boxes: tuple[tuple[float, float, float, float], ...] = (
+        (0.078, 0.022, -0.095, -0.045),
+        (0.047, 0.043, -0.150, -0.045),
+        (0.045, 0.045, -0.270, -0.150),
+    )
     pre_grasp_margin: float = 0.012  # extra opening on each side of the contacts while approaching
 
     def pre_grasp_opening(self, width: np.ndarray | float) -> np.ndarray:
@@ -45,17 +46,17 @@ class GripperGeometry:
         return np.minimum(np.asarray(width, dtype=np.float64) + 2.0 * self.pre_grasp_margin, self.max_opening)
 
     def boxes(self, opening: float) -> np.ndarray:
-        """Axis-aligned boxes (4, 2, 3) = [finger -x, finger +x, palm, wrist] x [min corner, max corner]."""
+        """Axis-aligned boxes (B, 2, 3) [min corner, max corner] of the gripper opened to `opening`: both fingers'
+        boxes (-x finger first), then the centre boxes."""
         half = 0.5 * float(opening)
-        fy, tip, top = 0.5 * self.finger_width, self.tip_beyond_origin, self.palm_top
-        bottom = top - self.palm_depth
-        px, py, w = 0.5 * self.palm_width, 0.5 * self.palm_thickness, 0.5 * self.wrist_width
-        return np.array([
-            [[-half - self.finger_thickness, -fy, top], [-half, fy, tip]],
-            [[half, -fy, top], [half + self.finger_thickness, fy, tip]],
-            [[-px, -py, bottom], [px, py, top]],
-            [[-w, -w, bottom - self.wrist_depth], [w, w, bottom]],
-        ])
+        boxes = []
+        for sign in (-1.0, 1.0):
+            for inner, outer, half_y, z_min, z_max in self.finger_boxes:
+                x0, x1 = sign * (half + inner), sign * (half + outer)
+                boxes.append([[min(x0, x1), -half_y, z_min], [max(x0, x1), half_y, z_max]])
+        for half_x, half_y, z_min, z_max in self.centre_boxes:
+            boxes.append([[-half_x, -half_y, z_min], [half_x, half_y, z_max]])
+        return np.array(boxes, dtype=np.float64)
 
 
 ROBOTIQ_2F85 = GripperGeometry()
