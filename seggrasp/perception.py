@@ -19,7 +19,8 @@ Pipeline (`perceive_object`):
    cameras (space carving): space some camera saw in front of a measured surface is outside, space no camera saw
    is inside. So the part the table hides is closed (flat, on the measured table plane, which bounds the solid),
    the inside of a solid stays solid, and a side no camera saw is filled up to the visual hull, the conservative
-   choice for grasping. Marching cubes (scikit-image) contours the grid; the largest piece is kept.
+   choice for grasping. Marching cubes (scikit-image) contours the grid; the largest piece is kept. Large objects
+   get a coarser grid (`target_faces`), which keeps the mesh closed where decimation would not.
    `reconstruct_mesh` alone, with points but no frames, decides inside/outside by a flood fill from the grid's
    border that cannot slip through gaps in the data narrower than a few voxels.
 
@@ -105,7 +106,7 @@ class PerceptionConfig:
     imls_bandwidth: float = 0.005  # Gaussian width of the IMLS weights (smooths depth noise)
     imls_neighbours: int = 12
     gap_voxels: int = 3  # gaps in the data up to 2 * gap_voxels * mesh_voxel wide do not leak (see implicit_surface)
-    target_faces: int = 0  # decimate larger meshes to about this many faces (0 = keep the marching-cubes mesh)
+    target_faces: int = 40000  # coarsen the grid so the mesh has at most about this many faces (0 = never)
     min_points: int = 100
     carve_margin: float = 0.003  # space this far in front of a measured surface counts as seen empty
 
@@ -221,13 +222,39 @@ def reconstruct_mesh(
     normals = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
 
     step = config.mesh_voxel
-    pad = config.imls_bandwidth + (config.gap_voxels + 3) * step
+    mesh = _contour(points, normals, step, table_plane, config, free_space)
+    if config.target_faces and len(mesh.faces) > config.target_faces:
+        # Coarsen the grid rather than decimate the mesh: marching cubes output stays closed and manifold.
+        step *= float(np.sqrt(len(mesh.faces) / config.target_faces))
+        logger.info("%d faces > target %d: contouring again on a %.4f m grid", len(mesh.faces),
+                    config.target_faces, step)
+        mesh = _contour(points, normals, step, table_plane, config, free_space)
+    logger.info("reconstructed mesh: %d faces, watertight=%s", len(mesh.faces), mesh.is_watertight)
+    return mesh
+
+
+def _contour(
+    points: np.ndarray,
+    normals: np.ndarray,
+    step: float,
+    table_plane: tuple[np.ndarray, float] | None,
+    config: PerceptionConfig,
+    free_space: Callable[[np.ndarray], np.ndarray] | None,
+) -> trimesh.Trimesh:
+    """Marching cubes of `implicit_surface` on a grid of spacing `step`; the largest piece, outward-facing.
+
+    The IMLS bandwidth is kept at least 1.5 cells so the data band is never thinner than the grid.
+    """
+    from skimage.measure import marching_cubes
+
+    bandwidth = max(config.imls_bandwidth, 1.5 * step)
+    pad = bandwidth + (config.gap_voxels + 3) * step
     origin = points.min(axis=0) - pad
     shape = tuple(int(n) for n in np.ceil((points.max(axis=0) + pad - origin) / step).astype(int) + 1)
     if np.prod(shape) > 30_000_000:
         raise ValueError(f"reconstruction grid {list(shape)} is too large; increase mesh_voxel or crop the cloud")
     volume = implicit_surface(
-        shape, origin, step, points, normals, config.imls_bandwidth, config.imls_neighbours, table_plane,
+        shape, origin, step, points, normals, bandwidth, config.imls_neighbours, table_plane,
         config.gap_voxels, free_space,
     )
     for axis in range(3):  # the grid's border is outside, so every contour closes
@@ -237,18 +264,11 @@ def reconstruct_mesh(
             volume[tuple(border)] = np.maximum(volume[tuple(border)], step)
     if volume.min() >= 0:
         raise ValueError("the implicit surface encloses no volume: the points do not outline a solid")
-
-    from skimage.measure import marching_cubes
-
     vertices, faces, _, _ = marching_cubes(volume, level=0.0, spacing=(step, step, step))
     mesh = trimesh.Trimesh(vertices=vertices + origin, faces=faces, process=True)
-    pieces = mesh.split(only_watertight=False)
-    mesh = max(pieces, key=lambda piece: piece.area)
+    mesh = max(mesh.split(only_watertight=False), key=lambda piece: piece.area)
     if mesh.volume < 0:
         mesh.invert()
-    if config.target_faces and len(mesh.faces) > config.target_faces:
-        mesh = _decimate(mesh, config.target_faces)
-    logger.info("reconstructed mesh: %d faces, watertight=%s", len(mesh.faces), mesh.is_watertight)
     return mesh
 
 
@@ -614,15 +634,3 @@ def _checked_pose(T: np.ndarray, what: str) -> np.ndarray:
     if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1]):
         raise ValueError(f"{what}: T_world_cam is not a rigid transform")
     return T
-
-
-def _decimate(mesh: trimesh.Trimesh, target_faces: int) -> trimesh.Trimesh:
-    """Quadric decimation (fast-simplification) to about `target_faces`. It can fold faces onto each other and
-    leave a few non-manifold edges; that is logged, since a closed surface was asked for."""
-    simplified = mesh.simplify_quadric_decimation(face_count=target_faces, aggression=3)
-    simplified = trimesh.Trimesh(simplified.vertices, simplified.faces, process=True)
-    if mesh.is_watertight and not simplified.is_watertight:
-        logger.warning("decimation to %d faces left the mesh not watertight", len(simplified.faces))
-    if simplified.volume < 0:
-        simplified.invert()
-    return simplified

@@ -189,6 +189,11 @@ def test_reconstruct_from_points_alone_orients_normals_itself():
     np.testing.assert_allclose(mesh.bounds, truth.bounds, atol=0.004)
     assert abs(mesh.volume - truth.volume) / truth.volume < 0.1
     assert chamfer(mesh, truth)[0] < 0.0015
+    coarse = reconstruct_mesh(points, table_plane=(np.array([0.0, 0.0, 1.0]), TABLE_HEIGHT),
+                              config=PerceptionConfig(target_faces=len(mesh.faces) // 4))
+    assert coarse.is_watertight, "a face budget coarsens the grid and keeps the surface closed"
+    assert len(coarse.faces) < 0.4 * len(mesh.faces)
+    assert chamfer(coarse, truth)[0] < 0.003
 
 
 def test_things_above_the_table_are_not_the_object(mug_scene):
