@@ -148,7 +148,7 @@ def label_hash(face_labels: np.ndarray) -> str:
 
 def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: bool = True) -> dict:
     """Write mesh.obj, labels.json, collision.obj (if `collision`, else reuse an existing one) and object.urdf into
-    `out_dir`; return the object's manifest record (paths relative to out_dir's parent's parent)."""
+    `out_dir`; return the object's manifest record (file paths as they lie under `assets/`: objects/<id>/...)."""
     generated = build_mesh(spec, seed)
     props, friction, part_masses = physical_properties(generated)
     out_dir.mkdir(parents=True, exist_ok=True)

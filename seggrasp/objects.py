@@ -258,6 +258,8 @@ def urdf_text(
 #: PyBullet-facing defaults for external objects (hard plastic).
 DEFAULT_DENSITY = 1000.0
 DEFAULT_FRICTION = 0.5
+#: Thinner objects (a sheet, a single plane) cannot be given a volume or a collision shape.
+MIN_THICKNESS_M = 0.001
 #: Payload of a Robotiq 2F-85; heavier objects still load but are reported.
 GRIPPER_PAYLOAD_KG = 5.0
 #: Voxels along the largest side when a mesh is not watertight and its volume must be estimated.
@@ -399,7 +401,8 @@ def load_external_object(
     hash and settings) and a one-link URDF into `cache_dir`. Mass comes from `density` times the estimated volume,
     or from `mass` if given (then the density is derived). `labels_path` holds one label per face of the file;
     `prompts` (default: the label file's part names) fixes label order: label k = prompt k.
-    Raises ValueError for what cannot be made physical: absurd or ungraspable size, no volume, no convex pieces.
+    Raises ValueError for what cannot be made physical: absurd or ungraspable size, a flat sheet (no volume), no
+    convex pieces.
     """
     mesh_path = Path(mesh_path)
     if density <= 0 or not np.isfinite(density):
@@ -414,6 +417,12 @@ def load_external_object(
         raise ValueError(
             f"{mesh_path}: {largest:.3f} m across; a tabletop object for a parallel gripper must be "
             f"{GRASPABLE_EXTENT_M[0]}-{GRASPABLE_EXTENT_M[1]} m (check the units of the file)"
+        )
+    thinnest = float(prepared.mesh.extents.min())
+    if thinnest < MIN_THICKNESS_M:
+        raise ValueError(
+            f"{mesh_path}: flat: its thinnest side is {thinnest * 1000:.3g} mm; a surface without thickness has no "
+            f"volume, mass or collision shape (need at least {MIN_THICKNESS_M * 1000:g} mm)"
         )
     raw = trimesh.load(mesh_path, force="mesh", process=False, skip_materials=True)
     lower, upper = prepared.mesh.bounds

@@ -178,6 +178,10 @@ def test_external_loader_rejects_what_cannot_be_made_physical(tmp_path: Path) ->
     _write_scaled_box(tmp_path / "crate.obj", 15.0)
     with pytest.raises(ValueError, match="tabletop object"):
         load_external_object(tmp_path / "crate.obj", cache_dir=tmp_path)
+    sheet = trimesh.creation.box([0.1, 0.1, 0.0002])
+    (tmp_path / "sheet.obj").write_text(obj_text(sheet.vertices, sheet.faces))
+    with pytest.raises(ValueError, match="flat: its thinnest side is 0.2 mm"):
+        load_external_object(tmp_path / "sheet.obj", cache_dir=tmp_path)
     box = _write_scaled_box(tmp_path / "brick.obj", 1.0)
     write_labels(tmp_path / "short.json", PartLabels(["a"], np.zeros(len(box.faces) - 1, dtype=int)))
     with pytest.raises(ValueError, match="face labels"):
@@ -218,5 +222,23 @@ def test_ycb_scans_load_through_the_external_loader(ycb_dir: Path, tmp_path: Pat
         rotation = Rotation.from_quat(orientation).as_matrix()
         world = hammer.mesh.vertices @ rotation.T + (np.array(end) - rotation @ hammer.center_of_mass)
         assert -0.002 < world[:, 2].min() < 0.003
+    finally:
+        pb.disconnect(client)
+
+
+@pytest.mark.slow
+def test_non_watertight_ycb_mug_becomes_a_physical_object(ycb_dir: Path, tmp_path: Path) -> None:
+    mug = load_external_object(ycb_dir / "025_mug" / "textured.obj", prompts=["handle", "body"], density=1100.0,
+                               cache_dir=tmp_path)
+    assert "closed (but not 2-manifold)" in mug.notes[0]
+    assert 0.08 < mug.mass < 0.25  # YCB mass sheet: 0.118 kg
+    assert 2 <= len(mug.collision_hulls) <= 16
+    client = pb.connect(pb.DIRECT)
+    try:
+        body = pb.loadURDF(str(mug.urdf_path), useFixedBase=True, physicsClientId=client)
+        top = mug.mesh.bounds[1, 2]
+        # the cup stays hollow: a ray down the middle reaches the inside of the floor, far below the rim
+        hit = pb.rayTest([0.0, 0.0, top + 0.1], [0.0, 0.0, -0.1], physicsClientId=client)[0]
+        assert hit[0] == body and hit[3][2] < 0.5 * top
     finally:
         pb.disconnect(client)
