@@ -196,3 +196,29 @@ def test_make_detector(mug) -> None:
         make_detector("yolo")
     with pytest.raises(ValueError, match="weights"):
         make_detector("owlv2", weights=None)
+
+
+@pytest.mark.slow
+def test_typical_preset_calibration_on_the_twin() -> None:
+    """The calibration recorded in seggrasp/detect/simulated.py: coarse mIoU of `typical` on the twin in 0.35-0.5."""
+    from seggrasp.mesh import prepare_mesh
+    from seggrasp.metrics import mean_over_categories
+    from seggrasp.objects import load_asset_set
+    from seggrasp.segment import SegmentationConfig, segment
+
+    try:
+        objects = load_asset_set()
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"object twin not available: {exc}")
+    config = SegmentationConfig(n_views=10, image_size=512, refine="none")
+    per_shape = []
+    for model in objects:
+        prepared = prepare_mesh(model.mesh.vertices, model.mesh.faces)
+        truth = model.labels.remap_to(model.prompts)
+        working_truth = PartLabels(model.prompts, prepared.from_source(truth))
+        for seed in range(3):
+            result = segment(prepared, model.prompts, SimulatedDetector(working_truth, "typical", seed), config)
+            per_shape.append((model.category, shape_miou(result.labels, truth, len(model.prompts),
+                                                         model.mesh.area_faces)))
+    overall = mean_over_categories(per_shape)["overall"]
+    assert 0.35 <= overall <= 0.5, f"typical coarse mIoU on the twin is {overall:.3f}"

@@ -64,10 +64,24 @@ class SimulatedDetectorPreset:
     false_confidence: tuple[float, float]
 
 
-# Calibration record. Coarse voting only (10 views of `camera_rig`, eq. 1, argmax), area-weighted mIoU
-# (seggrasp.metrics.shape_miou) averaged over seeds 0-2 and then over objects.
-# Preliminary, on six two/three-part objects built from trimesh primitives (mug, hammer, bottle, pan, knife,
-# spatula; 4k-17k faces), 256 px: perfect 0.83, typical 0.53, hard 0.38.
+# Calibration record (done once on 2026-11-22, then frozen; never tuned per method).
+# Measure: coarse voting only (segment(refine="none"): 10 views of camera_rig(seed=0), 512 px, eq. 1, argmax),
+# area-weighted shape mIoU (seggrasp.metrics.shape_miou) averaged over detector seeds 0-2, then over shapes per
+# category, then over categories (seggrasp.metrics.mean_over_categories).
+# 1. Object twin (assets/manifest.json, generator 1.0.0: 29 objects in 9 categories), starting from
+#    whole_object_rate 0.35 / confusion_rate 0.2: perfect 0.947, typical 0.589 (too good), hard 0.405.
+# 2. Grid over the two failure rates real detectors show most on part prompts (other numbers as below), typical:
+#      whole_object_rate  0.35  0.35  0.35  0.5   0.5   0.5   0.6   0.6   0.6
+#      confusion_rate     0.2   0.3   0.4   0.2   0.3   0.4   0.2   0.3   0.4
+#      mIoU               0.589 0.524 0.437 0.567 0.500 0.418 0.518 0.458 0.387
+#    chosen: 0.5 / 0.4 (mIoU 0.418, the middle of the 0.35-0.5 target; the paper's coarse baseline is 0.34).
+#    hard, grid 0.6/0.7 x 0.5/0.6: 0.343 0.328 0.349 0.348 -> chosen 0.6 / 0.5.
+# 3. Final, per category (bottle, frying_pan, hammer, knife, mug, screwdriver, spatula, toothbrush, wine_glass):
+#      perfect 0.947 (0.947 0.997 0.995 0.997 0.866 0.988 0.975 0.973 0.786)
+#      typical 0.418 (0.492 0.530 0.434 0.426 0.384 0.389 0.422 0.416 0.265)
+#      hard    0.343 (0.455 0.377 0.324 0.295 0.373 0.371 0.281 0.369 0.240)
+# (Before the twin landed, six primitive-built objects gave perfect 0.83 / typical 0.53 / hard 0.38 with the
+# step-1 numbers.)
 PRESETS: dict[str, SimulatedDetectorPreset] = {
     # Tight boxes around every visible part, confidence 1: the best any box detector can do (boxes still over-cover).
     "perfect": SimulatedDetectorPreset(
@@ -77,13 +91,13 @@ PRESETS: dict[str, SimulatedDetectorPreset] = {
     ),
     # Near the regime of real open-vocabulary detectors on part prompts (calibrated, see the record above).
     "typical": SimulatedDetectorPreset(
-        miss_rate=0.15, small_part_miss=0.35, whole_object_rate=0.35, confusion_rate=0.2, shift_sigma=0.08,
+        miss_rate=0.15, small_part_miss=0.35, whole_object_rate=0.5, confusion_rate=0.4, shift_sigma=0.08,
         scale_sigma=0.15, peak_confidence=0.8, confidence_floor=0.3, confidence_noise=0.1, false_boxes=0.3,
         false_confidence=(0.1, 0.35),
     ),
     # A detector that mostly fails on parts.
     "hard": SimulatedDetectorPreset(
-        miss_rate=0.3, small_part_miss=0.5, whole_object_rate=0.5, confusion_rate=0.35, shift_sigma=0.15,
+        miss_rate=0.3, small_part_miss=0.5, whole_object_rate=0.6, confusion_rate=0.5, shift_sigma=0.15,
         scale_sigma=0.3, peak_confidence=0.7, confidence_floor=0.2, confidence_noise=0.15, false_boxes=0.6,
         false_confidence=(0.1, 0.4),
     ),
