@@ -15,7 +15,8 @@ GALLERY_PATH = ASSETS_DIR / "gallery.png"
 
 def _list(args: argparse.Namespace) -> int:
     models = [load_asset(i) for i in asset_ids(args.category)]
-    print(f"{'id':24s} {'category':12s} {'prompts':22s} {'mass kg':>8s} {'mu':>5s} {'size mm':>18s} {'faces':>6s} {'hulls':>5s}")
+    print(f"{'id':24s} {'category':12s} {'prompts':22s} {'mass kg':>8s} {'mu':>5s} {'size mm':>18s} "
+          f"{'faces':>6s} {'hulls':>5s}")
     for m in models:
         size = "x".join(f"{d * 1000:.0f}" for d in m.mesh.extents)
         print(f"{m.object_id:24s} {m.category:12s} {','.join(m.prompts):22s} {m.mass:8.3f} {m.friction:5.2f} "
@@ -25,8 +26,10 @@ def _list(args: argparse.Namespace) -> int:
 
 
 def _generate(args: argparse.Namespace) -> int:
-    manifest = generate_set(seed=args.seed, object_ids=args.only or None, collision=not args.no_collision)
-    print(f"wrote {len(manifest['objects'])} objects and {ASSETS_DIR / 'manifest.json'} (seed {args.seed})")
+    manifest = generate_set(seed=args.seed, object_ids=args.only or None, root=args.root,
+                            collision=not args.no_collision)
+    count = len(args.only) if args.only else len(manifest["objects"])
+    print(f"generated {count} objects (seed {args.seed}); {args.root / 'manifest.json'} lists {len(manifest['objects'])}")
     return 0
 
 
@@ -48,6 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     p_gen.add_argument("--seed", type=int, default=0, help="shape jitter seed (0 = the committed set)")
     p_gen.add_argument("--only", action="append", metavar="ID", help="regenerate only this object (repeatable)")
     p_gen.add_argument("--no-collision", action="store_true", help="keep the existing collision.obj (skip CoACD)")
+    p_gen.add_argument("--root", type=Path, default=ASSETS_DIR, help="output folder (default: the committed set)")
     p_gal = sub.add_parser("gallery", help="render all objects coloured by part into a PNG")
     p_gal.add_argument("--out", type=Path, default=GALLERY_PATH)
     p_gal.add_argument("--columns", type=int, default=6)

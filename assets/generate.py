@@ -165,7 +165,9 @@ def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: b
             hulls += part_hulls
         write_collision_obj(collision_path, hulls, VERTEX_DECIMALS, names)
     elif not collision_path.is_file():
-        raise ValueError(f"{spec.object_id}: no collision model at {collision_path}; generate with collision=True")
+        raise ValueError(
+            f"{spec.object_id}: no collision model at {collision_path} to keep; generate it with CoACD first"
+        )
     hull_parts = [generated.labels.parts.index(name.rsplit("_", 1)[0]) for name in obj_group_names(collision_path)]
     urdf = urdf_text(spec.object_id, "mesh.obj", "collision.obj", props, friction,
                      spinning_friction=SPINNING_FRICTION, rolling_friction=ROLLING_FRICTION)

@@ -252,3 +252,13 @@ def test_cli_lists_and_renders_a_gallery(tmp_path: Path, capsys: pytest.CaptureF
     assert assets_main(["list", "--category", "teapot"]) == 2
     assert "unknown categories" in capsys.readouterr().err
     assert (ASSETS_DIR / "gallery.png").is_file()
+
+
+def test_cli_generates_one_object_into_another_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert assets_main(["generate", "--only", "knife_paring", "--root", str(tmp_path), "--no-collision"]) == 2
+    assert "no collision model" in capsys.readouterr().err
+    assert assets_main(["generate", "--only", "knife_paring", "--root", str(tmp_path)]) == 0  # CoACD on 2 parts
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert [r["id"] for r in manifest["objects"]] == ["knife_paring"]
+    assert manifest["objects"][0] == RECORDS["knife_paring"]
+    assert _sha(tmp_path / "objects" / "knife_paring" / "collision.obj") == RECORDS["knife_paring"]["sha256"]["collision"]
