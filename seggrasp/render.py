@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
 import trimesh  # noqa: E402
 from OpenGL import GL  # noqa: E402
+from pyrender.shader_program import ShaderProgramCache  # noqa: E402
 
 from seggrasp.mesh import unit_normalisation  # noqa: E402
 from seggrasp.views import View  # noqa: E402
@@ -147,6 +148,29 @@ def shade_faces(face_normals: np.ndarray, T_world_cam: np.ndarray) -> np.ndarray
     return np.clip(255.0 * SURFACE_GREY * (AMBIENT_LIGHT + KEY_LIGHT * lambert), 0, 255).astype(np.uint8)
 
 
+class _ProgramCachePerRenderer(ShaderProgramCache):
+    """pyrender's shader-program cache, keyed without the GL context.
+
+    pyrender keys compiled programs on `OpenGL.contextdata.getContext()`; under OSMesa that returns a new pointer
+    object on every call (equal hashes, never equal), so every render pass compiled and kept a new program: memory
+    grew by ~9 MB per 10 views. A renderer owns exactly one context, so the key can leave it out.
+    """
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._by_source: dict[tuple, object] = {}
+
+    def get_program(self, vertex_shader, fragment_shader, geometry_shader=None, defines=None):
+        key = (vertex_shader, fragment_shader, geometry_shader, tuple(sorted((defines or {}).items())))
+        if key not in self._by_source:
+            self._by_source[key] = super().get_program(vertex_shader, fragment_shader, geometry_shader, defines)
+        return self._by_source[key]
+
+    def clear(self) -> None:
+        super().clear()
+        self._by_source.clear()
+
+
 class ViewRenderer:
     """An offscreen pyrender renderer of one image size, reused across meshes and views (OSMesa context)."""
 
@@ -157,6 +181,7 @@ class ViewRenderer:
         self.distance = float(distance)
         self.K = intrinsics(self.image_size, self.distance)
         self._renderer = pyrender.OffscreenRenderer(self.image_size, self.image_size)
+        self._renderer._renderer._program_cache = _ProgramCachePerRenderer()
         self._single_sampled = False
 
     def close(self) -> None:

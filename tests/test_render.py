@@ -9,6 +9,7 @@ import trimesh
 from seggrasp.mesh import unit_normalisation
 from seggrasp.render import (
     CAMERA_DISTANCE,
+    ViewRenderer,
     camera_rig,
     decode_face_ids,
     encode_face_colours,
@@ -159,3 +160,15 @@ def test_bad_rig_and_pose_arguments() -> None:
         render_views(box, [look_at(np.array([0.5, 0.0, 0.2]))], image_size=32)
     with pytest.raises(ValueError, match="4x4"):
         render_views(box, [np.eye(3)], image_size=32)
+
+
+def test_renderer_reuses_its_shader_program() -> None:
+    """Regression: pyrender under OSMesa compiled (and kept) a new shader program on every render pass."""
+    renderer = ViewRenderer(32)
+    try:
+        box = trimesh.creation.box([0.1, 0.1, 0.1])
+        for _ in range(3):
+            renderer.render(box, camera_rig(4))
+        assert len(renderer._renderer._renderer._program_cache._program_cache) == 1
+    finally:
+        renderer.close()
