@@ -57,9 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _read_ground_truth(path: Path, prepared: PreparedMesh) -> PartLabels:
+def _read_ground_truth(path: Path, prepared: PreparedMesh, prompts: list[str]) -> PartLabels:
     labels = read_labels(path)
     labels.check_faces(prepared.n_source_faces, what=f"mesh {prepared.source_path}")
+    if not (labels.remap_to(prompts) >= 0).any():
+        raise ValueError(f"no prompt {prompts} names a part of the ground truth {labels.parts} (matched by name)")
     return labels
 
 
@@ -77,7 +79,7 @@ def run_segment(args: argparse.Namespace) -> dict:
 
     prompts = check_prompts(args.prompts)
     prepared = load_mesh(args.mesh)
-    ground_truth = _read_ground_truth(args.labels, prepared) if args.labels else None
+    ground_truth = _read_ground_truth(args.labels, prepared, prompts) if args.labels else None
     working_truth = (
         PartLabels(ground_truth.parts, prepared.from_source(ground_truth.face_labels)) if ground_truth else None
     )
@@ -130,8 +132,6 @@ def _evaluate(result, ground_truth: PartLabels, prompts: list[str], face_areas: 
     from seggrasp.metrics import part_ious
 
     truth = ground_truth.remap_to(prompts)
-    if not (truth >= 0).any():
-        raise ValueError(f"no prompt {prompts} names a ground-truth part {ground_truth.parts}: nothing to evaluate")
     evaluation = {}
     for name, labels in (("final", result.labels), ("coarse", result.coarse_labels)):
         for weighting, areas in (("area", face_areas), ("faces", None)):

@@ -160,6 +160,7 @@ def test_cli_end_to_end(hammer_files, tmp_path: Path, capsys) -> None:
         ([], "needs ground-truth part labels"),
         (["--labels", "{labels}", "--detector", "owlv2"], "weights"),
         (["--labels", "{labels}", "--workers", "0"], "workers"),
+        (["--labels", "{labels}", "--prompt", "lid", "--prompt", "HANDLE"], "distinct"),
     ],
 )
 def test_cli_bad_input_exits_2(hammer_files, tmp_path: Path, capsys, extra: list[str], message: str) -> None:
@@ -184,3 +185,13 @@ def test_cli_subprocess_bad_mesh_has_no_traceback(tmp_path: Path) -> None:
     assert completed.returncode == 2
     assert "error:" in completed.stderr and "broken.ply" in completed.stderr
     assert "Traceback" not in completed.stderr
+
+
+def test_cli_ground_truth_must_name_a_prompt(hammer_files, tmp_path: Path, capsys) -> None:
+    mesh_path, labels_path, _ = hammer_files
+    out = tmp_path / "out"
+    code = main(["segment", str(mesh_path), "--prompt", "lid", "--labels", str(labels_path), "--views", "2",
+                 "--image-size", "32", "--refine", "none", "--out", str(out)])
+    assert code == 2
+    assert "names a part of the ground truth" in capsys.readouterr().err
+    assert not out.exists()  # checked before anything is computed or written
