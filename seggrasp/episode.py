@@ -174,6 +174,7 @@ class ObjectSegmenter:
         seed: int = 0,
         decomposition_cache: str | None = None,
         coarse_scores: np.ndarray | None = None,
+        decomposition_workers: int | None = None,
     ) -> None:
         self.mesh = mesh
         self.prepared = prepare_mesh(mesh.vertices, mesh.faces, name="object")
@@ -182,6 +183,7 @@ class ObjectSegmenter:
         self.gt_labels = None if gt_labels is None else np.asarray(gt_labels, dtype=np.int64)
         self.seed = seed
         self.decomposition_cache = decomposition_cache
+        self.decomposition_workers = decomposition_workers
         self._coarse = None if coarse_scores is None else np.asarray(coarse_scores, dtype=np.float64)
         self._partitions: list[Partition] | None = None
 
@@ -201,7 +203,9 @@ class ObjectSegmenter:
         """`mesh`'s distinct decompositions, finest first (cached on disk by seggrasp.decompose)."""
         if self._partitions is None:
             config = DecompositionConfig(seed=self.seed)
-            self._partitions = decompose_sweep(self.mesh, config, cache_dir=self.decomposition_cache)
+            self._partitions = decompose_sweep(
+                self.mesh, config, cache_dir=self.decomposition_cache, workers=self.decomposition_workers
+            )
         return self._partitions
 
     def refined_scores(self, mode: str, partitions: list[Partition] | None = None) -> np.ndarray:
@@ -335,7 +339,7 @@ def execute_slot(
     T_obj_world = np.linalg.inv(observation.T_world_obj)
     if context.gt_labels is not None:
         # contacts in the labelled mesh's frame: a perceived mesh lives in the world, the twin in the object frame
-        T_gt_world = T_obj_world if not observation.perceived else np.linalg.inv(_true_pose(cell, observation))
+        T_gt_world = T_obj_world if not observation.perceived else np.linalg.inv(true_object_pose(cell))
         contacts = grasp.contacts[0] @ T_gt_world[:3, :3].T + T_gt_world[:3, 3]
         record.contacts_on_part = bool(ground_truth_on_part(contacts[None], context.gt_mesh, context.gt_labels, k)[0])
     key = grasp_key(T_world_grasp, width)
@@ -360,7 +364,7 @@ def execute_slot(
     return record
 
 
-def _true_pose(cell: Cell, observation: Observation) -> np.ndarray:
+def true_object_pose(cell: Cell) -> np.ndarray:
     """The labelled twin's pose in the world, for scoring a perceived mesh (only a simulator knows it)."""
     _, T_world_obj = cell.object_mesh()
     return np.asarray(T_world_obj, dtype=np.float64)
@@ -390,7 +394,7 @@ def run_episode(
     target_indices = _target_indices(context.prompts, targets)
     cell.reset(seed=context.scene_seed, object_id=context.object_id)
     observation = observe(cell, perceive=perceive, workspace=workspace)
-    gt_on_mesh = _gt_on_observation(cell, context, observation)
+    gt_on_mesh = ground_truth_on_mesh(cell, context, observation)
     segmenter = ObjectSegmenter(
         observation.mesh, context.prompts, detector, gt_on_mesh, seed=seed, decomposition_cache=decomposition_cache
     )
@@ -421,8 +425,9 @@ def _target_indices(prompts: Sequence[str], targets: Sequence[str] | None) -> li
     return indices
 
 
-def _gt_on_observation(cell: Cell, context: EpisodeContext, observation: Observation) -> np.ndarray | None:
-    """Ground-truth prompt labels per face of the planning mesh (transferred when the mesh was perceived)."""
+def ground_truth_on_mesh(cell: Cell, context: EpisodeContext, observation: Observation) -> np.ndarray | None:
+    """Ground-truth prompt labels per face of the planning mesh (transferred from the twin when the mesh was
+    perceived; None when the object has no labels)."""
     if context.gt_labels is None:
         return None
     if not observation.perceived:
@@ -432,6 +437,6 @@ def _gt_on_observation(cell: Cell, context: EpisodeContext, observation: Observa
                 f"{len(context.gt_labels)}"
             )
         return context.gt_labels
-    T_obj_world = np.linalg.inv(_true_pose(cell, observation))
+    T_obj_world = np.linalg.inv(true_object_pose(cell))
     return transfer_labels(context.gt_mesh, context.gt_labels, observation.mesh, T_obj_world)
 

@@ -28,6 +28,7 @@ import sys
 import time
 import traceback
 import zlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -41,11 +42,11 @@ from seggrasp.episode import (
     EpisodeContext,
     ObjectSegmenter,
     execute_slot,
+    ground_truth_on_mesh,
     grasp_key,
     observe,
     plan_trials,
     table_plane_in_object_frame,
-    _gt_on_observation,
 )
 from seggrasp.grasp import AntipodalSampler
 from seggrasp.grasp.select import TOP_K
@@ -164,6 +165,7 @@ class ObjectTask:
     object_id: str
     config: RunConfig
     out: str
+    parallel: bool = False  # other objects are evaluated at the same time: one CoACD process per object
 
 
 _CELL = None  # one simulated cell per worker process
@@ -230,14 +232,14 @@ def _evaluate_object(task: ObjectTask) -> int:
     cell = _get_cell(config)
     cell.reset(seed=scene_seed, object_id=task.object_id)
     observation = observe(cell, perceive=config.perceive, workspace=_workspace(cell) if config.perceive else None)
-    gt_on_mesh = _gt_on_observation(cell, context, observation)
+    gt_on_mesh = ground_truth_on_mesh(cell, context, observation)
 
     cache = out / "cache" / task.object_id
     coarse_path = cache / "coarse.npz"
     coarse = np.load(coarse_path)["scores"] if coarse_path.exists() else None
     segmenter = ObjectSegmenter(
         observation.mesh, context.prompts, config.detector_spec(), gt_on_mesh, seed=config.seed,
-        coarse_scores=coarse,
+        coarse_scores=coarse, decomposition_workers=1 if task.parallel else None,
     )
     grasps = None
     n_new = 0
@@ -635,7 +637,7 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False) ->
 
     _prepare_out(out, config, resume)
     started = time.time()
-    tasks = [ObjectTask(object_id, config, str(out)) for object_id in config.objects]
+    tasks = [ObjectTask(object_id, config, str(out), parallel=workers > 1) for object_id in config.objects]
     crashes = []
     with tqdm(total=len(tasks), desc="objects", unit="obj") as bar:
         if workers == 1:
@@ -645,10 +647,11 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False) ->
                 crashes += _report(status, bar)
             _close_cell()
         else:
+            # not multiprocessing.Pool: its daemonic workers may not start the CoACD processes of a decomposition
             context = multiprocessing.get_context("spawn")
-            with context.Pool(workers, initializer=_worker_init) as pool:
-                for status in pool.imap_unordered(evaluate_object, tasks):
-                    crashes += _report(status, bar)
+            with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+                for status in as_completed([pool.submit(evaluate_object, task) for task in tasks]):
+                    crashes += _report(status.result(), bar)
     wall = time.time() - started
     summary = write_summary(config, out, wall, crashes)
     return summary, crashes
