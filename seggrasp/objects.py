@@ -5,7 +5,10 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import multiprocessing
+import multiprocessing.connection
 import os
+import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -113,24 +116,53 @@ def combine_mass_properties(parts: Sequence[MassProperties]) -> MassProperties:
     return MassProperties(mass=float(mass), center_of_mass=com, inertia=0.5 * (inertia + inertia.T))
 
 
-def convex_decomposition(mesh: trimesh.Trimesh, config: CollisionConfig = CollisionConfig()) -> list[trimesh.Trimesh]:
-    """Approximate convex decomposition with CoACD; each piece is returned as its convex hull."""
+def _coacd_child(connection: multiprocessing.connection.Connection, vertices: np.ndarray, faces: np.ndarray,
+                 options: dict) -> None:
     import coacd
 
+    coacd.set_log_level("error")
+    result = coacd.run_coacd(coacd.Mesh(vertices, faces), **options)
+    connection.send([(np.asarray(v), np.asarray(f)) for v, f in result])
+    connection.close()
+
+
+def _run_coacd_isolated(vertices: np.ndarray, faces: np.ndarray, options: dict) -> list | None:
+    """Run CoACD in a child process: it aborts the whole process on some meshes. None if the child died."""
+    context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else "spawn")
+    receive, send = context.Pipe(duplex=False)
+    process = context.Process(target=_coacd_child, args=(send, vertices, faces, options), daemon=True)
+    process.start()
+    send.close()
+    try:
+        result = receive.recv()
+    except EOFError:
+        result = None
+    process.join()
+    return result
+
+
+def convex_decomposition(mesh: trimesh.Trimesh, config: CollisionConfig = CollisionConfig()) -> list[trimesh.Trimesh]:
+    """Approximate convex decomposition with CoACD; each piece is returned as its convex hull.
+
+    CoACD runs in a child process; if it aborts, it is retried once with the other pre-processing mode, then a
+    ValueError says so.
+    """
     if config.preprocess not in ("on", "off"):
         raise ValueError(f"CollisionConfig.preprocess must be 'on' or 'off', got {config.preprocess!r}")
     if config.max_faces is not None and len(mesh.faces) > config.max_faces:
         mesh = mesh.simplify_quadric_decimation(face_count=config.max_faces)
-    coacd.set_log_level("error")
-    result = coacd.run_coacd(
-        coacd.Mesh(np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int32)),
-        threshold=config.threshold,
-        max_convex_hull=config.max_hulls,
-        preprocess_mode=config.preprocess,
-        resolution=config.resolution,
-        mcts_iterations=config.mcts_iterations,
-        seed=config.seed,
-    )
+    vertices = np.ascontiguousarray(mesh.vertices, dtype=np.float64)
+    faces = np.ascontiguousarray(mesh.faces, dtype=np.int32)
+    options = dict(threshold=config.threshold, max_convex_hull=config.max_hulls, resolution=config.resolution,
+                   mcts_iterations=config.mcts_iterations, seed=config.seed)
+    result = None
+    for preprocess in (config.preprocess, "off" if config.preprocess == "on" else "on"):
+        result = _run_coacd_isolated(vertices, faces, {**options, "preprocess_mode": preprocess})
+        if result is not None:
+            break
+        log.warning("CoACD aborted on a mesh of %d faces with preprocess=%s", len(faces), preprocess)
+    if result is None:
+        raise ValueError(f"CoACD aborted on this mesh ({len(faces)} faces) with pre-processing on and off")
     hulls = [trimesh.Trimesh(v, f, process=False).convex_hull for v, f in result]
     hulls = [h for h in hulls if h.volume > 0]
     if not hulls:

@@ -242,3 +242,17 @@ def test_non_watertight_ycb_mug_becomes_a_physical_object(ycb_dir: Path, tmp_pat
         assert hit[0] == body and hit[3][2] < 0.5 * top
     finally:
         pb.disconnect(client)
+
+
+def test_coacd_runs_isolated_so_an_abort_becomes_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    import seggrasp.objects as objects
+
+    box = trimesh.creation.box([0.05, 0.04, 0.03])
+    vertices, faces = np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int32)
+    assert objects._run_coacd_isolated(vertices, faces, {"no_such_option": 1}) is None  # the child died
+    assert len(objects.convex_decomposition(box, FAST_COLLISION)) == 1
+    calls = []
+    monkeypatch.setattr(objects, "_run_coacd_isolated", lambda v, f, options: calls.append(options) or None)
+    with pytest.raises(ValueError, match="CoACD aborted on this mesh"):
+        objects.convex_decomposition(box, FAST_COLLISION)
+    assert [c["preprocess_mode"] for c in calls] == ["on", "off"]
