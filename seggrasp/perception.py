@@ -8,10 +8,13 @@ Pipeline (`perceive_object`):
    aligned, with a shrinking correspondence radius. It repairs extrinsic drift of a degree or two and a few
    millimetres; the table in the workspace constrains height and tilt, the object the rest.
 3. **Table removal**: a RANSAC plane among points just around the known table height (near-horizontal planes only),
-   refined by least squares; everything below it or within `table_margin` above it is dropped. With too few table
-   points the known height is used.
+   refined by least squares; everything below it or within a margin above it is dropped: `table_margin`, or three
+   times the depth noise measured on the table if that is more. With too few table points the known height is
+   used. (Parts thinner than the margin that lie flat on the table, like a knife blade, are lost with it: depth
+   alone cannot tell them from the table.)
 4. **Clean-up**: voxel down-sampling (centroid per voxel), statistical outlier removal (mean distance to the
-   k nearest neighbours), and only the clusters resting on the table kept (a gripper above the object is not it).
+   k nearest neighbours), noise specks dropped, and only the clusters resting on the table kept (a gripper above
+   the object is not it; see `supported_clusters`).
 5. **Normals** by PCA over the k nearest neighbours, oriented towards the camera that saw each point.
 6. **Surface**: on a voxel grid, a signed distance that is negative inside. Within `imls_bandwidth` of the points
    it is an implicit moving-least-squares (IMLS) estimate, sum_i w_i (x - p_i).n_i / sum_i w_i with Gaussian
@@ -94,11 +97,14 @@ class PerceptionConfig:
     table_search_above: float = 0.008  # ...up to this far above it
     table_inlier: float = 0.002  # RANSAC inlier distance
     table_max_tilt_deg: float = 10.0
-    table_margin: float = 0.004  # points closer than this above the table are table, not object
+    table_margin: float = 0.004  # points closer than this above the table are table, not object...
+    table_noise_sigmas: float = 3.0  # ...nor closer than this many times the depth noise measured on the table
     voxel_size: float = 0.002  # fused-cloud down-sampling
     outlier_neighbours: int = 16
     outlier_std_ratio: float = 2.0
-    cluster_radius: float = 0.01  # points closer than this belong to one cluster
+    cluster_radius: float = 0.01  # points closer than this belong to one cluster...
+    min_cluster_points: int = 20  # ...and smaller clusters are noise
+    cluster_link: float = 0.03  # clusters closer than this are one object (bridges a thin stem seen badly)
     cluster_keep_fraction: float = 0.2  # clusters at least this fraction of the largest are kept
     support_gap: float = 0.02  # a cluster whose lowest point is higher above the table is not the object
     normal_neighbours: int = 16
@@ -112,7 +118,8 @@ class PerceptionConfig:
 
     def __post_init__(self) -> None:
         positive = [
-            "max_depth", "carve_margin", "table_inlier", "voxel_size", "cluster_radius", "mesh_voxel", "imls_bandwidth"
+            "max_depth", "carve_margin", "table_inlier", "voxel_size", "cluster_radius", "cluster_link", "mesh_voxel",
+            "imls_bandwidth",
         ]
         for name in positive:
             if not getattr(self, name) > 0:
@@ -125,13 +132,14 @@ class PerceptionConfig:
 
 @dataclass
 class OrientedCloud:
-    """Fused object points with outward unit normals, the fitted table plane n.x = d (n pointing up), and the
-    input frames with their camera poses corrected by view registration."""
+    """Fused object points with outward unit normals, the fitted table plane n.x = d (n pointing up), the margin
+    above it that counted as table, and the input frames with their camera poses corrected by view registration."""
 
     points: np.ndarray  # (N, 3)
     normals: np.ndarray  # (N, 3)
     table_normal: np.ndarray  # (3,)
     table_offset: float
+    table_margin: float
     frames: list[Frame]
 
 
@@ -170,18 +178,21 @@ def fuse_oriented_cloud(
         ]
 
     all_points = np.concatenate(clouds)
-    table_normal, table_offset = fit_table_plane(all_points, workspace, config, np.random.default_rng(seed))
+    table_normal, table_offset, table_noise = fit_table_plane(
+        all_points, workspace, config, np.random.default_rng(seed)
+    )
+    table_margin = max(config.table_margin, config.table_noise_sigmas * table_noise)
     view_dirs = []
     for cloud, centre in zip(clouds, centres):
         to_camera = centre - cloud
         view_dirs.append(to_camera / np.linalg.norm(to_camera, axis=1, keepdims=True))
     view_dir = np.concatenate(view_dirs)
-    above = all_points @ table_normal - table_offset > config.table_margin
+    above = all_points @ table_normal - table_offset > table_margin
     points, view_dir = voxel_downsample(all_points[above], config.voxel_size, view_dir[above])
     keep = statistical_inliers(points, config.outlier_neighbours, config.outlier_std_ratio)
     points, view_dir = points[keep], view_dir[keep]
     height = points @ table_normal - table_offset
-    keep = supported_clusters(points, height, config.cluster_radius, config.cluster_keep_fraction, config.support_gap)
+    keep = supported_clusters(points, height, config)
     points, view_dir = points[keep], view_dir[keep]
     if len(points) < config.min_points:
         raise ValueError(
@@ -191,7 +202,7 @@ def fuse_oriented_cloud(
     normals = estimate_normals(points, config.normal_neighbours)
     normals *= np.where(np.einsum("ij,ij->i", normals, view_dir) < 0, -1.0, 1.0)[:, None]
     logger.info("fused %d object points from %d frames", len(points), len(frames))
-    return OrientedCloud(points, normals, table_normal, table_offset, frames)
+    return OrientedCloud(points, normals, table_normal, table_offset, table_margin, frames)
 
 
 def reconstruct_mesh(
@@ -279,7 +290,7 @@ def perceive_object(
     config = config or PerceptionConfig()
     cloud = fuse_oriented_cloud(frames, workspace, config, seed)
     table_plane = (cloud.table_normal, cloud.table_offset)
-    free_space = seen_free_space(cloud.frames, config.carve_margin, table_plane, config.table_margin, config.max_depth)
+    free_space = seen_free_space(cloud.frames, config.carve_margin, table_plane, cloud.table_margin, config.max_depth)
     return reconstruct_mesh(cloud.points, cloud.normals, table_plane, config, free_space)
 
 
@@ -337,25 +348,38 @@ def statistical_inliers(points: np.ndarray, neighbours: int, std_ratio: float) -
     return mean_distance <= mean_distance.mean() + std_ratio * mean_distance.std()
 
 
-def supported_clusters(
-    points: np.ndarray, height: np.ndarray, radius: float, keep_fraction: float, support_gap: float
-) -> np.ndarray:
-    """Mask of the points of the object on the table: clusters (single linkage at `radius`) whose lowest point is
-    within `support_gap` of the table (things held above it, like a gripper, are not the object), keeping the
-    largest such cluster and any at least `keep_fraction` of its size."""
+def supported_clusters(points: np.ndarray, height: np.ndarray, config: PerceptionConfig) -> np.ndarray:
+    """Mask of the points of the object on the table.
+
+    Points are grouped by single linkage at `cluster_radius`; groups under `min_cluster_points` are specks of
+    noise (the tail of the table's depth noise above the margin) and dropped. The rest are linked again at
+    `cluster_link`, which bridges a thin part the cameras see badly (a wine glass's stem). Clusters whose lowest
+    point is more than `support_gap` above the table are not the object (a gripper above it); of the others the
+    largest is kept, with any at least `cluster_keep_fraction` of its size.
+    """
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
-    _, component = connected_components(graph, directed=False)
-    sizes = np.bincount(component)
+    fine = _components(points, config.cluster_radius)
+    keep = np.bincount(fine)[fine] >= config.min_cluster_points
+    if not keep.any():
+        return keep
+    coarse = _components(points[keep], config.cluster_link)
+    sizes = np.bincount(coarse)
     lowest = np.full(len(sizes), np.inf)
-    np.minimum.at(lowest, component, height)
-    supported = lowest <= support_gap
+    np.minimum.at(lowest, coarse, height[keep])
+    supported = lowest <= config.support_gap
     if not supported.any():
         return np.zeros(len(points), dtype=bool)
-    keep = supported & (sizes >= keep_fraction * sizes[supported].max())
-    return keep[component]
+    chosen = supported & (sizes >= config.cluster_keep_fraction * sizes[supported].max())
+    keep[keep] = chosen[coarse]
+    return keep
+
+
+def _components(points: np.ndarray, radius: float) -> np.ndarray:
+    """Connected-component index of every point under single linkage at `radius`."""
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
+    return connected_components(graph, directed=False)[1]
 
 
 def estimate_normals(points: np.ndarray, neighbours: int) -> np.ndarray:
@@ -525,10 +549,13 @@ def seen_free_space(
 
 def fit_table_plane(
     points: np.ndarray, workspace: Workspace, config: PerceptionConfig, rng: np.random.Generator
-) -> tuple[np.ndarray, float]:
-    """Table plane (n, d) with n.x = d, n pointing up: RANSAC among points near the known height, refined by least
-    squares; the known height when too few points are there."""
-    known = (np.array([0.0, 0.0, 1.0]), workspace.table_height)
+) -> tuple[np.ndarray, float, float]:
+    """Table plane (n, d) with n.x = d, n pointing up, and the depth noise measured on it (m, RMS).
+
+    RANSAC among points near the known height, refined by least squares. The noise is the RMS distance of the
+    points below the plane (nothing but table noise lies there). With too few table points: the known height and
+    noise 0."""
+    known = (np.array([0.0, 0.0, 1.0]), workspace.table_height, 0.0)
     height = points[:, 2] - workspace.table_height
     candidates = points[(height > -config.table_search_below) & (height < config.table_search_above)]
     if len(candidates) < 50:
@@ -553,9 +580,13 @@ def fit_table_plane(
     centroid = inlier_points.mean(axis=0)
     normal = np.linalg.svd(inlier_points - centroid, full_matrices=False)[2][2]
     normal = normal if normal[2] > 0 else -normal
-    logger.info("table plane: %d inliers, height %.4f m, tilt %.2f deg", best_count, centroid[2],
-                np.degrees(np.arccos(min(1.0, normal[2]))))
-    return normal, float(normal @ centroid)
+    offset = float(normal @ centroid)
+    residual = candidates @ normal - offset
+    below = residual[residual < 0]
+    noise = float(np.sqrt(np.mean(below**2))) if len(below) else 0.0
+    logger.info("table plane: %d inliers, height %.4f m, tilt %.2f deg, depth noise %.1f mm", best_count,
+                centroid[2], np.degrees(np.arccos(min(1.0, normal[2]))), 1000 * noise)
+    return normal, offset, noise
 
 
 def register_views(clouds: list[np.ndarray], config: PerceptionConfig) -> list[np.ndarray]:
