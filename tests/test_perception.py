@@ -21,6 +21,7 @@ from seggrasp.perception import (  # noqa: E402
     icp_point_to_plane,
     perceive_object,
     reconstruct_mesh,
+    supported_clusters,
 )
 
 TABLE_HEIGHT = 0.02
@@ -254,3 +255,21 @@ def test_perceives_the_twin_mug_from_the_simulated_cameras():
     _, _, nearest = trimesh.proximity.closest_point(truth, mesh.triangles_center)
     perceived_handle_area = mesh.area_faces[handle[nearest]].sum()
     assert 0.6 < perceived_handle_area / truth.area_faces[handle].sum() < 2.0  # measured 1.6: hull-thickened
+
+
+def test_clusters_bridge_small_gaps_but_not_bodies_above_or_specks():
+    rng = np.random.default_rng(0)
+
+    def blob(centre, n=400, size=0.02):
+        return np.asarray(centre) + rng.uniform(-size, size, size=(n, 3))
+
+    base = blob((0, 0, 0.025))  # resting on the table (lowest point 5 mm up)
+    bowl = blob((0, 0, 0.085))  # 2 cm above the base: a stem the cameras missed
+    gripper = blob((0, 0, 0.25))  # far above: not the object
+    specks = rng.uniform((-0.2, -0.2, 0.005), (0.2, 0.2, 0.008), size=(60, 3))  # table noise above the margin...
+    specks = specks[np.abs(specks[:, :2]).max(axis=1) > 0.04]  # ...away from the object (near it, SOR's job)
+    points = np.concatenate([base, bowl, gripper, specks])
+    keep = supported_clusters(points, points[:, 2], PerceptionConfig())
+    labels = np.repeat([0, 1, 2, 3], [len(base), len(bowl), len(gripper), len(specks)])
+    assert keep[labels == 0].all() and keep[labels == 1].all()
+    assert not keep[labels == 2].any() and not keep[labels == 3].any()
