@@ -105,25 +105,26 @@ def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
 
 
 def subdivided(item: LabelledMesh, n_faces: int) -> LabelledMesh:
-    """`item` split 1-to-4 until it has at least `n_faces` faces, then decimated to about `n_faces` (watertight
-    in, watertight out); labels follow the nearest face centroid of the subdivided mesh."""
-    import fast_simplification
-    from scipy.spatial import cKDTree
+    """`item` refined (manifold3d: edges split until shorter than a length found by bisection) to about `n_faces`
+    faces; it stays a closed manifold and every new face keeps the label of the face it came from."""
+    import manifold3d
 
-    vertices, faces, labels = item.mesh.vertices, item.mesh.faces, item.labels.face_labels
-    while len(faces) < n_faces:
-        vertices, faces, index = trimesh.remesh.subdivide(vertices, faces, return_index=True)
-        new_labels = np.empty(len(faces), dtype=np.int64)
-        for old, new in index.items():
-            new_labels[new] = labels[old]
-        labels = new_labels
-    fine = trimesh.Trimesh(vertices, faces, process=False)
-    small_v, small_f = fast_simplification.simplify(np.asarray(vertices, np.float32), np.asarray(faces, np.int32),
-                                                    target_reduction=1.0 - n_faces / len(faces))
-    mesh = trimesh.Trimesh(np.asarray(small_v, np.float64), np.asarray(small_f, np.int64), process=False)
-    _, nearest = cKDTree(fine.triangles_center).query(mesh.triangles_center)
-    return LabelledMesh(f"{item.name}_{len(mesh.faces) // 1000}k", item.category, mesh,
-                        PartLabels(item.labels.parts, labels[nearest]))
+    solid = manifold3d.Manifold(manifold3d.Mesh64(np.asarray(item.mesh.vertices, np.float64),
+                                                  np.asarray(item.mesh.faces, np.uint64)))
+    low, high = 1e-5, float(np.linalg.norm(item.mesh.extents))
+    refined = None
+    for _ in range(40):
+        length = np.sqrt(low * high)
+        refined = solid.refine_to_length(length).to_mesh64()
+        count = len(refined.tri_verts)
+        if 0.97 * n_faces <= count <= 1.05 * n_faces:
+            break
+        low, high = (length, high) if count > n_faces else (low, length)
+    mesh = trimesh.Trimesh(np.asarray(refined.vert_properties[:, :3]), np.asarray(refined.tri_verts, np.int64),
+                           process=False)
+    labels = item.labels.face_labels[np.asarray(refined.face_id, dtype=np.int64)]
+    return LabelledMesh(f"{item.name}_{round(len(mesh.faces) / 1000)}k", item.category, mesh,
+                        PartLabels(item.labels.parts, labels))
 
 
 # ----------------------------------------------------------------------------------------------- the stages
@@ -288,13 +289,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--compare", choices=["reference"], help="also run the paper's literal sweep")
     parser.add_argument("--normalisations", action="store_true", help="compare GeoFusion S_rev normalisations")
     parser.add_argument("--meshes", default="twin,primitives",
-                        help="comma list of: twin, primitives, big (a twin object subdivided to >= 30k faces), "
+                        help="comma list of: twin, primitives, big (a twin object subdivided to --big-faces faces), "
                              "or mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--image-size", type=int, default=512)
     parser.add_argument("--workers", type=int, default=None)
+    parser.add_argument("--big-from", default="knife_chef", help="twin object to subdivide for --meshes big")
+    parser.add_argument("--big-faces", type=int, default=30000, help="face count of the --meshes big mesh")
     parser.add_argument("--twin-dir", type=Path, help="read twin objects from <dir>/<id>/{mesh.obj,labels.json}")
     parser.add_argument("--normalisation", default=None, choices=NORMALISATIONS)
     parser.add_argument("--no-warm", dest="warm", action="store_false", help="skip the warm-cache run")
@@ -318,7 +321,10 @@ def main(argv: list[str] | None = None) -> int:
     if "big" in wanted:
         if not twin:
             parser.error("--meshes big needs the twin's objects")
-        items.append(subdivided(next((t for t in twin if t.category == "mug"), twin[0]), 30000))
+        source = next((t for t in twin if t.name == args.big_from), None)
+        if source is None:
+            parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
+        items.append(subdivided(source, args.big_faces))
     named = [w for w in wanted if w not in ("twin", "primitives", "big")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:

@@ -55,6 +55,14 @@ def test_full_geofusion_hand_computed():
     # Rows of s_hat: [3, 5/6], [1, 11/6], [2, 13/3], [2, 4/3]; area-weighted means per finest part:
     np.testing.assert_allclose(s_hat, [[3.0, 5 / 6], [1.0, 11 / 6], [2.0, 13 / 3], [2.0, 4 / 3]])
     expected = np.array([[2.0, 4 / 3], [2.0, 4 / 3], [2.0, 17 / 6], [2.0, 17 / 6]])
+    full = refine_scores(SCORES, PARTITIONS, AREAS, "full", normalisation="partition_mean")
+    np.testing.assert_allclose(full, expected)
+    np.testing.assert_array_equal(labels_from_scores(full), [0, 0, 1, 1])
+
+
+def test_full_geofusion_literal_reading_is_the_default():
+    # Literal S_hat rows: [11/4, 13/24], [3/4, 37/24], [7/4, 97/24], [7/4, 25/24]; means over the finest parts:
+    expected = np.array([[7 / 4, 25 / 24], [7 / 4, 25 / 24], [7 / 4, 61 / 24], [7 / 4, 61 / 24]])
     full = refine_scores(SCORES, PARTITIONS, AREAS, "full")
     np.testing.assert_allclose(full, expected)
     np.testing.assert_array_equal(labels_from_scores(full), [0, 0, 1, 1])
