@@ -1,11 +1,11 @@
 """The ShapeGrasp baseline as the SegGrasp paper describes it: convex decomposition only, part chosen by the
 detector, one grasp at the chosen part's centroid, top-down, with a fixed rotation.
 
-ShapeGrasp reasons over the convex parts of one decomposition. Here the parts are those of the decomposition
-sweep's partition nearest `SHAPEGRASP_THRESHOLD`, and the part for prompt k is the one with the highest
-area-weighted mean of the detector's votes for k (the same coarse vote matrix S the other methods start from), so
-the comparison isolates the geometry: whole convex parts and a fixed top-down grasp instead of GeoFusion and the
-antipodal sampler. Its face labels (for mIoU) give every part its best-voted prompt.
+ShapeGrasp reasons over the convex parts of one decomposition. Here the parts are those of the coarsest partition of
+the decomposition sweep that has at least one part per prompt (`choose_partition`), and the part for prompt k is
+the one with the highest area-weighted mean of the detector's votes for k (the same coarse vote matrix S the other
+methods start from), so the comparison isolates the geometry: whole convex parts and a fixed top-down grasp
+instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU) give every part its best-voted prompt.
 """
 
 from __future__ import annotations
@@ -21,19 +21,22 @@ from seggrasp.labels import UNKNOWN
 
 LOG = logging.getLogger(__name__)
 
-#: CoACD concavity threshold of the single decomposition ShapeGrasp uses (nearest partition of the sweep).
-SHAPEGRASP_THRESHOLD = 0.1
 #: Fixed closing direction of the top-down grasp, world frame (the approach is always world -z).
 SHAPEGRASP_CLOSING_AXIS = np.array([1.0, 0.0, 0.0])
 #: Height of the fingertips above the table top when a part's centroid is too low to grasp at.
 TABLE_CLEARANCE = 0.005
 
 
-def choose_partition(thresholds: Sequence[float], threshold: float = SHAPEGRASP_THRESHOLD) -> int:
-    """Index of the partition whose decomposition threshold is nearest `threshold`."""
-    if len(thresholds) == 0:
+def choose_partition(part_counts: Sequence[int], n_prompts: int) -> int:
+    """Index of the partition ShapeGrasp reasons over, given the parts per partition ordered finest first: the
+    coarsest one with at least one part per prompt (few, large convex parts, as ShapeGrasp's part graph has), or
+    the finest if none has that many."""
+    if len(part_counts) == 0:
         raise ValueError("no partitions to choose from")
-    return int(np.argmin(np.abs(np.asarray(thresholds, dtype=np.float64) - threshold)))
+    if n_prompts < 1:
+        raise ValueError(f"need at least one prompt, got {n_prompts}")
+    enough = [i for i, count in enumerate(part_counts) if count >= n_prompts]
+    return max(enough) if enough else 0
 
 
 def part_votes(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndarray) -> np.ndarray:

@@ -31,7 +31,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from seggrasp.baselines import SHAPEGRASP_THRESHOLD, choose_partition, part_votes, shapegrasp_grasps, shapegrasp_labels
+from seggrasp.baselines import choose_partition, part_votes, shapegrasp_grasps, shapegrasp_labels
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.decompose import DecompositionConfig, Partition, decompose_sweep
 from seggrasp.detect import make_detector
@@ -227,7 +227,8 @@ class ObjectSegmenter:
             return PartPlan(method, "ground-truth", self.gt_labels.copy())
         if method == "shapegrasp":
             partitions = self.partitions()
-            chosen = partitions[choose_partition([p.threshold for p in partitions], SHAPEGRASP_THRESHOLD)]
+            counts = [int(p.part_of_face.max()) + 1 for p in partitions]
+            chosen = partitions[choose_partition(counts, len(self.prompts))]
             part_of_face = chosen.part_of_face
             votes = part_votes(self.coarse_scores(), part_of_face, self.mesh.area_faces)
             grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)

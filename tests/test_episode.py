@@ -132,3 +132,13 @@ def test_perceived_episode_plans_on_the_camera_mesh(cell, cylinder) -> None:
                           workspace=cell.workspace)
     assert all(r.executed for r in records)
     assert any(r.success for r in records)  # labels transferred from the twin to the fused mesh select the side
+
+
+def test_shapegrasp_reasons_over_the_coarsest_partition_with_a_part_per_prompt() -> None:
+    from seggrasp.baselines import choose_partition
+
+    assert choose_partition([33, 2, 1], n_prompts=2) == 1
+    assert choose_partition([96, 46, 8], n_prompts=3) == 2
+    assert choose_partition([1, 1], n_prompts=2) == 0
+    with pytest.raises(ValueError, match="no partitions"):
+        choose_partition([], n_prompts=2)
