@@ -33,6 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seggrasp.decompose import DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
+from seggrasp.io import atomic_save_npz  # noqa: E402
 from seggrasp.fusion import NORMALISATIONS, REFINE_MODES, refine_scores  # noqa: E402
 from seggrasp.labels import PartLabels, read_labels  # noqa: E402
 from seggrasp.mesh import mesh_hash  # noqa: E402
@@ -120,8 +121,8 @@ def subdivided(item: LabelledMesh, n_faces: int) -> LabelledMesh:
         if 0.97 * n_faces <= count <= 1.05 * n_faces:
             break
         low, high = (length, high) if count > n_faces else (low, length)
-    mesh = trimesh.Trimesh(np.asarray(refined.vert_properties[:, :3]), np.asarray(refined.tri_verts, np.int64),
-                           process=False)
+    mesh = trimesh.Trimesh(np.ascontiguousarray(refined.vert_properties[:, :3], dtype=np.float64),
+                           np.asarray(refined.tri_verts, np.int64), process=False)
     labels = item.labels.face_labels[np.asarray(refined.face_id, dtype=np.int64)]
     return LabelledMesh(f"{item.name}_{round(len(mesh.faces) / 1000)}k", item.category, mesh,
                         PartLabels(item.labels.parts, labels))
@@ -214,6 +215,9 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
                 warm_times["total_without_detector"] = time.perf_counter() - started - warm_times["detect"]
                 warm = {"times": warm_times, "coacd_runs": len(warm_stats.run_seconds)}
         quality = evaluate_modes(item, scores, partitions, args.normalisation)
+        sidecar = args.out.parent / f"{args.out.stem}_arrays" / f"{item.name}_{mode}.npz"
+        atomic_save_npz(sidecar, coarse_scores=scores, thresholds=np.array([p.threshold for p in partitions]),
+                        partitions=np.stack([p.part_of_face for p in partitions]).astype(np.int32))
         times = dict(coarse_times, decompose=decompose_s, fusion=quality["full"]["seconds"])
         times["total_without_detector"] = sum(v for k, v in times.items() if k != "detect")
         records.append({

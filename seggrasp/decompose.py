@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import concurrent.futures
 import dataclasses
+import faulthandler
 import hashlib
 import json
 import logging
@@ -287,8 +288,9 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.nd
     gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged (CoACD then
     remeshes it itself in its preprocessing step).
     """
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
+    # Fresh writable C-ordered copies: manifold3d refuses read-only views.
+    vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
+    faces = np.array(mesh.faces, dtype=np.int64, order="C")
     if tolerance <= 0:
         return vertices, faces
     import manifold3d
@@ -461,6 +463,7 @@ def decompose_sweep(
 
 
 def _job_process(conn, job: tuple) -> None:
+    faulthandler.disable()  # a CoACD abort is reported by the parent; no interpreter dump from the child
     conn.send(_decompose_once(job))
     conn.close()
 
