@@ -214,3 +214,16 @@ def test_parallel_workers_give_the_serial_result(tmp_path):
     parallel = decompose_sweep(mesh, config, cache_dir=tmp_path / "p", workers=2)
     assert [p.threshold for p in serial] == [p.threshold for p in parallel]
     assert all(a.same_as(b) for a, b in zip(serial, parallel))
+
+
+def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypatch, tmp_path):
+    mesh = l_shape().subdivide().subdivide()
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    decompose_sweep(mesh, DecompositionConfig(seed=2), cache_dir=tmp_path, workers=2)
+    calls = logged_calls(log)
+    assert len(calls) <= decompose.FAST_MAX_RUNS
+    assert {c[0] for c in calls} >= {0.02, 0.25}
+    assert all(c[1] == dict(decompose.FAST_COACD, seed=2) for c in calls)
+    assert all(c[2] < len(mesh.faces) for c in calls)
+    assert len({c[3] for c in calls}) == len(calls)  # every run in its own process
