@@ -2,10 +2,11 @@
 detector, one grasp at the chosen part's centroid, top-down, with a fixed rotation.
 
 ShapeGrasp reasons over the convex parts of one decomposition. Here the parts are those of the coarsest partition of
-the decomposition sweep that has at least one part per prompt (`choose_partition`), and the part for prompt k is
-the one with the highest area-weighted mean of the detector's votes for k (the same coarse vote matrix S the other
-methods start from), so the comparison isolates the geometry: whole convex parts and a fixed top-down grasp
-instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU) give every part its best-voted prompt.
+the decomposition sweep that has at least one part per prompt (`choose_partition`), and the part for each prompt is
+chosen from the area-weighted mean of the detector's votes (the same coarse vote matrix S the other methods start
+from), one distinct part per prompt (`assign_parts_to_prompts`), so the comparison isolates the geometry: whole
+convex parts and a fixed top-down grasp instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU)
+give the chosen parts their prompts and every other part its best-voted prompt.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 import trimesh
+from scipy.optimize import linear_sum_assignment
 
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 from seggrasp.labels import UNKNOWN
@@ -56,10 +58,33 @@ def part_votes(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndar
     return weighted / np.maximum(area, 1e-18)[:, None]
 
 
+def assign_parts_to_prompts(votes: np.ndarray) -> np.ndarray:
+    """(P,) the part chosen for each prompt (-1 if it got no vote): distinct parts where there are enough, the
+    assignment maximising the summed votes after scaling each prompt's votes by their maximum (ShapeGrasp names
+    each convex part once, so two prompts do not share a part)."""
+    votes = np.asarray(votes, dtype=np.float64)
+    voted = (votes > 0).any(axis=0)
+    chosen = np.full(votes.shape[1], UNKNOWN, dtype=np.int64)
+    prompts = np.flatnonzero(voted)
+    if len(prompts) == 0:
+        return chosen
+    scaled = votes[:, prompts] / votes[:, prompts].max(axis=0)
+    if votes.shape[0] >= len(prompts):
+        parts, columns = linear_sum_assignment(-scaled)
+        chosen[prompts[columns]] = parts
+    else:  # fewer parts than prompts: each prompt takes its best part
+        chosen[prompts] = np.argmax(scaled, axis=0)
+    return chosen
+
+
 def shapegrasp_labels(votes: np.ndarray, part_of_face: np.ndarray) -> np.ndarray:
-    """Per-face labels: each part takes its best-voted prompt, -1 for parts without any vote."""
+    """Per-face labels: the parts chosen for prompts take that prompt, every other part its best-voted prompt
+    (-1 for parts without any vote)."""
     best = np.argmax(votes, axis=1).astype(np.int64)
     best[~(votes > 0).any(axis=1)] = UNKNOWN
+    for prompt, part in enumerate(assign_parts_to_prompts(votes)):
+        if part >= 0:
+            best[part] = prompt
     return best[np.asarray(part_of_face, dtype=np.int64)]
 
 
@@ -88,11 +113,10 @@ def shapegrasp_grasps(
     rotation = np.column_stack([closing, np.cross(approach, closing), approach])
 
     grasps = []
-    for k in range(votes.shape[1]):
-        if not (votes[:, k] > 0).any():
+    for k, part in enumerate(assign_parts_to_prompts(votes)):
+        if part < 0:
             grasps.append(GraspSet.empty())
             continue
-        part = int(np.argmax(votes[:, k]))
         faces = np.flatnonzero(part_of_face == part)
         areas = mesh.area_faces[faces]
         centroid = mesh.triangles_center[faces].T @ areas / max(float(areas.sum()), 1e-18)

@@ -142,3 +142,13 @@ def test_shapegrasp_reasons_over_the_coarsest_partition_with_a_part_per_prompt()
     assert choose_partition([1, 1], n_prompts=2) == 0
     with pytest.raises(ValueError, match="no partitions"):
         choose_partition([], n_prompts=2)
+
+
+def test_shapegrasp_gives_each_prompt_its_own_part() -> None:
+    from seggrasp.baselines import assign_parts_to_prompts
+
+    # a whole-object box votes for both prompts on the big part 0; prompt 1 is relatively strongest on part 2
+    votes = np.array([[1.0, 0.9], [0.2, 0.1], [0.1, 0.6]])
+    assert assign_parts_to_prompts(votes).tolist() == [0, 2]
+    assert assign_parts_to_prompts(np.array([[1.0, 0.0], [0.5, 0.0]])).tolist() == [0, -1]
+    assert assign_parts_to_prompts(np.array([[1.0, 0.8]])).tolist() == [0, 0]  # one part for two prompts
