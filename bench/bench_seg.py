@@ -31,7 +31,7 @@ import trimesh  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seggrasp.decompose import DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
+from seggrasp.decompose import PAPER_THRESHOLDS, DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.io import atomic_save_npz  # noqa: E402
 from seggrasp.fusion import NORMALISATIONS, REFINE_MODES, refine_scores  # noqa: E402
@@ -199,6 +199,9 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
         if (item.name, mode) in done:
             continue
         config = DecompositionConfig(mode=mode, seed=args.seed)
+        if mode == "fast" and args.fast_from is not None:
+            config = DecompositionConfig(mode=mode, seed=args.seed,
+                                         thresholds=tuple(t for t in PAPER_THRESHOLDS if t >= args.fast_from - 1e-9))
         with tempfile.TemporaryDirectory(prefix="seggrasp-bench-") as cache:
             partitions, stats, decompose_s, peak_mb = sweep_in_child(item.mesh, config, cache, args.workers)
             warm = None
@@ -288,10 +291,50 @@ def normalisation_study(items: list[LabelledMesh], args) -> None:
         print(f"  {normalisation:15s} " + " ".join(f"{m} {np.mean(rows[normalisation][m]):.3f}" for m in REFINE_MODES))
 
 
+def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
+    """mIoU of every refinement mode on the partitions a --compare run stored, for several detector seeds.
+
+    The decompositions do not depend on the detector, so this measures both modes' partitions under the same
+    coarse scores for seeds 0..--seeds-1 without re-running CoACD.
+    """
+    folder = args.out.parent / f"{args.out.stem}_arrays"
+    table: dict[str, dict[str, list[float]]] = {mode: {m: [] for m in REFINE_MODES} for mode in modes}
+    for item in items:
+        stored = {mode: folder / f"{item.name}_{mode}.npz" for mode in modes}
+        if not all(path.is_file() for path in stored.values()):
+            continue
+        partitions = {}
+        for mode, path in stored.items():
+            from seggrasp.decompose import Partition
+
+            with np.load(path) as data:
+                partitions[mode] = [Partition(float(t), p.astype(np.int64))
+                                    for t, p in zip(data["thresholds"], data["partitions"])]
+        line = []
+        for seed in range(args.seeds):
+            scores, _ = coarse_scores(item, args.preset, seed, args.views, args.image_size)
+            for mode in modes:
+                quality = evaluate_modes(item, scores, partitions[mode], args.normalisation)
+                for m in REFINE_MODES:
+                    table[mode][m].append(quality[m]["miou"])
+        for mode in modes:
+            n = args.seeds
+            line.append(f"{mode}: coarse {np.mean(table[mode]['none'][-n:]):.3f} full {np.mean(table[mode]['full'][-n:]):.3f}")
+        print(f"{item.name:24s} " + "  ".join(line), flush=True)
+    print(f"\nmean over meshes and seeds 0..{args.seeds - 1} (preset {args.preset}):")
+    for mode in modes:
+        print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--compare", choices=["reference"], help="also run the paper's literal sweep")
     parser.add_argument("--normalisations", action="store_true", help="compare GeoFusion S_rev normalisations")
+    parser.add_argument("--rescore", action="store_true",
+                        help="re-evaluate the partitions a --compare run stored beside --out, over --seeds seeds")
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
+    parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, big (a twin object subdivided to --big-faces faces), "
                              "or mesh names")
@@ -343,6 +386,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
     modes = ["fast"] + ([args.compare] if args.compare else [])
+    if args.rescore:
+        rescore(items, args.rescore_modes.split(",") if args.rescore_modes else modes, args)
+        return 0
     records = []
     if args.resume and args.out.is_file():
         records = [json.loads(line) for line in args.out.read_text().splitlines() if line.strip()]
