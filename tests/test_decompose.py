@@ -227,3 +227,19 @@ def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypa
     assert all(c[1] == dict(decompose.FAST_COACD, seed=2) for c in calls)
     assert all(c[2] < len(mesh.faces) for c in calls)
     assert len({c[3] for c in calls}) == len(calls)  # every run in its own process
+
+
+def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path):
+    objects = pytest.importorskip("seggrasp.objects")
+    try:
+        model = objects.load_asset("knife_chef")
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"twin not available: {exc}")
+    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    stats = SweepStats()
+    try:
+        partitions = decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path, stats=stats)
+    except RuntimeError:
+        pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m seggrasp.decompose --precompute-assets`")
+    assert stats.run_seconds == {} and len(stats.cached) >= 2
+    assert partitions[0].part_of_face.shape == (len(model.mesh.faces),)
