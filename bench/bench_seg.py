@@ -3,6 +3,8 @@
     python bench/bench_seg.py                              # fast mode, twin + primitive meshes, cold then warm
     python bench/bench_seg.py --compare reference          # fast vs the paper's literal sweep, same coarse scores
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
+    python bench/bench_seg.py --meshes twin --quality      # mIoU per refinement mode over the twin, seeds 0-2
+    python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
 
 Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
 are computed once per mesh, so every mode sees the same views, boxes and seeds. Cold runs use a fresh cache folder
@@ -326,6 +328,25 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
         print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
 
 
+def quality(items: list[LabelledMesh], args) -> None:
+    """Category and overall mIoU of every refinement mode on default-mode sweeps (warm from the bundled caches for
+    the twin), over detector seeds 0..--seeds-1."""
+    rows: dict[str, list[tuple[str, float]]] = {m: [] for m in REFINE_MODES}
+    started = time.perf_counter()
+    for item in items:
+        partitions = decompose_sweep(item.mesh, DecompositionConfig(seed=args.seed), workers=args.workers)
+        for seed in range(args.seeds):
+            scores, _ = coarse_scores(item, args.preset, seed, args.views, args.image_size)
+            for mode, q in evaluate_modes(item, scores, partitions, args.normalisation).items():
+                rows[mode].append((item.category, q["miou"]))
+    print(f"{len(items)} meshes x {args.seeds} detector seeds (preset {args.preset}), "
+          f"{time.perf_counter() - started:.0f} s")
+    for mode in REFINE_MODES:
+        summary = mean_over_categories(rows[mode])
+        print(f"{mode:7s} mIoU {summary['overall']:.3f} (mean over categories)  " +
+              " ".join(f"{c} {v:.2f}" for c, v in summary["categories"].items()))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--compare", choices=["reference"], help="also run the paper's literal sweep")
@@ -333,6 +354,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rescore", action="store_true",
                         help="re-evaluate the partitions a --compare run stored beside --out, over --seeds seeds")
     parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--quality", action="store_true",
+                        help="mIoU of every refinement mode, mean over categories, over --seeds detector seeds")
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
@@ -383,6 +406,9 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.normalisations:
         normalisation_study(items, args)
+        return 0
+    if args.quality:
+        quality(items, args)
         return 0
 
     modes = ["fast"] + ([args.compare] if args.compare else [])
