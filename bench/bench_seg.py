@@ -151,7 +151,7 @@ def coarse_scores(item: LabelledMesh, preset: str, seed: int, n_views: int, imag
 def _sweep_child(conn, mesh, config, cache_dir, workers) -> None:
     stats = SweepStats()
     started = time.perf_counter()
-    partitions = decompose_sweep(mesh, config, cache_dir=cache_dir, workers=workers, stats=stats)
+    partitions = decompose_sweep(mesh, config, cache_dir=cache_dir, workers=workers, stats=stats, bundled=False)
     elapsed = time.perf_counter() - started
     peak_kb = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
                   resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
@@ -212,7 +212,7 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
                 warm_scores, warm_times = coarse_scores(item, args.preset, args.seed, args.views, args.image_size)
                 warm_stats = SweepStats()
                 sweep_started = time.perf_counter()
-                warm_partitions = decompose_sweep(item.mesh, config, cache_dir=cache, stats=warm_stats)
+                warm_partitions = decompose_sweep(item.mesh, config, cache_dir=cache, stats=warm_stats, bundled=False)
                 warm_times["decompose"] = time.perf_counter() - sweep_started
                 fusion_started = time.perf_counter()
                 labels_from_scores(refine_scores(warm_scores, warm_partitions, item.mesh.area_faces, "full"))

@@ -396,11 +396,13 @@ def decompose_sweep(
     cache_dir: str | os.PathLike | None = None,
     workers: int | None = None,
     stats: SweepStats | None = None,
+    bundled: bool = True,
 ) -> list[Partition]:
     """Distinct CoACD partitions of `mesh`'s faces over the configured thresholds, finest (lowest) first.
 
     Cached on disk (see the module docstring). `workers` = parallel CoACD processes (default: 1 in reference
-    mode, else the CPU count). Pass a `SweepStats` to learn the per-threshold times.
+    mode, else the CPU count). Pass a `SweepStats` to learn the per-threshold times. `bundled=False` ignores the
+    precomputed caches in assets/decompositions/ (for cold-run benchmarks).
     """
     config = config or DecompositionConfig()
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -411,7 +413,7 @@ def decompose_sweep(
         raise ValueError(f"workers must be >= 1, got {workers}")
     stats = stats if stats is not None else SweepStats()
     writable = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    search = [writable] + ([ASSET_CACHE_DIR] if ASSET_CACHE_DIR != writable else [])
+    search = [writable] + ([ASSET_CACHE_DIR] if bundled and ASSET_CACHE_DIR != writable else [])
     digest = mesh_hash(mesh)
     n_faces = len(mesh.faces)
     centroids = np.asarray(mesh.triangles_center, dtype=np.float64)
