@@ -26,8 +26,12 @@ class PartLabels:
     face_labels: np.ndarray
 
     def __post_init__(self) -> None:
+        if isinstance(self.parts, (str, bytes)) or not all(isinstance(p, str) for p in self.parts):
+            raise ValueError(f"parts must be a list of part names (strings), got {self.parts!r}")
         self.parts = [str(p) for p in self.parts]
         labels = np.asarray(self.face_labels)
+        if labels.dtype == object or labels.dtype.kind in "USb":
+            raise ValueError(f"face_labels must be integers, got values of type {labels.dtype}")
         if labels.ndim != 1:
             raise ValueError(f"face_labels must be a 1-D array, got shape {labels.shape}")
         if labels.size and not np.issubdtype(labels.dtype, np.integer):
@@ -80,11 +84,11 @@ def read_labels(path: str | os.PathLike) -> PartLabels:
             data = json.loads(path.read_text())
             if not isinstance(data, dict) or "parts" not in data or "face_labels" not in data:
                 raise ValueError('expected a JSON object with keys "parts" and "face_labels"')
-            return PartLabels(list(data["parts"]), np.asarray(data["face_labels"]))
+            return PartLabels(data["parts"], data["face_labels"])
         if path.suffix.lower() == ".npz":
             with np.load(path, allow_pickle=False) as data:
                 return PartLabels([str(p) for p in data["parts"]], data["face_labels"])
-    except (ValueError, KeyError, json.JSONDecodeError) as exc:
+    except (ValueError, TypeError, KeyError, json.JSONDecodeError) as exc:
         raise ValueError(f"bad label file {path}: {exc}") from exc
     raise ValueError(f"unsupported label file type {path.suffix!r} (use .json or .npz): {path}")
 

@@ -129,16 +129,26 @@ def prepare_mesh(
             "Meshes must be in metres (a scan in millimetres needs scaling by 0.001)."
         )
 
-    areas = _triangle_areas(vertices, faces)
-    threshold = DEGENERATE_AREA_FRACTION * max(float(areas.mean()), np.finfo(float).tiny)
-    keep = (areas > threshold) & (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    # Merge duplicate vertices first (keeps face order), then drop faces that are degenerate afterwards: a sliver
+    # whose corners merge becomes a face with a repeated vertex.
+    merged = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+    merged.merge_vertices(merge_tex=True, merge_norm=True)
+    merged_faces = np.asarray(merged.faces, dtype=np.int64)
+    merged_vertices = np.asarray(merged.vertices, dtype=np.float64)
+    areas = _triangle_areas(merged_vertices, merged_faces)
+    threshold = DEGENERATE_AREA_FRACTION * max(float(_triangle_areas(vertices, faces).mean()), np.finfo(float).tiny)
+    distinct = (
+        (merged_faces[:, 0] != merged_faces[:, 1])
+        & (merged_faces[:, 1] != merged_faces[:, 2])
+        & (merged_faces[:, 0] != merged_faces[:, 2])
+    )
+    keep = (areas > threshold) & distinct
     if not keep.any():
         raise ValueError(f"{name}: all {len(faces)} faces have zero area")
     kept = np.flatnonzero(keep)
     dropped = np.flatnonzero(~keep)
 
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces[kept], process=False, validate=False)
-    mesh.merge_vertices(merge_tex=True, merge_norm=True)  # keeps face order
+    mesh = trimesh.Trimesh(vertices=merged_vertices, faces=merged_faces[kept], process=False, validate=False)
     mesh.remove_unreferenced_vertices()
 
     source_to_work = np.empty(len(faces), dtype=np.int64)

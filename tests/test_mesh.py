@@ -177,12 +177,6 @@ def test_degenerate_faces_dropped_from_a_file(ring: trimesh.Trimesh, tmp_path: P
     np.testing.assert_allclose(prepared.mesh.triangles, ring.triangles, atol=1e-6)
 
 
-@pytest.mark.xfail(
-    reason="mesh.py bug: faces are tested for zero area BEFORE merge_vertices; a thin face whose two corners are "
-    "closer than trimesh's merge tolerance (1e-8) survives the area test and becomes a face with a repeated "
-    "vertex after merging. Fix: drop faces with repeated indices again after merge_vertices (and update the maps).",
-    strict=False,
-)
 def test_faces_collapsed_by_vertex_merging_are_dropped() -> None:
     vertices = np.array([[0, 0, 0], [1e-9, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0], [0, 0, 0.1]], dtype=float)
     faces = np.array([[0, 1, 2], [0, 3, 2], [0, 2, 4]])
@@ -294,11 +288,6 @@ def test_label_file_type_and_presence(tmp_path: Path) -> None:
         write_labels(tmp_path / "labels.txt", PartLabels(["a"], np.array([0])))
 
 
-@pytest.mark.xfail(
-    reason="labels.py bug: PartLabels only checks integrality with np.mod, which raises TypeError (not ValueError) "
-    "for JSON face_labels holding strings or null; read_labels does not catch TypeError either.",
-    strict=False,
-)
 @pytest.mark.parametrize("face_labels", [["0", "x"], [0, None]])
 def test_label_file_with_non_numeric_labels_gives_value_error(tmp_path: Path, face_labels: list) -> None:
     path = tmp_path / "strings.json"
@@ -307,11 +296,6 @@ def test_label_file_with_non_numeric_labels_gives_value_error(tmp_path: Path, fa
         read_labels(path)
 
 
-@pytest.mark.xfail(
-    reason='labels.py bug: read_labels passes list(data["parts"]) through, so a JSON string "ab" silently becomes '
-    "the two parts ['a', 'b'] instead of being rejected as not a list of names.",
-    strict=False,
-)
 def test_label_file_with_parts_as_a_string_is_rejected(tmp_path: Path) -> None:
     path = tmp_path / "parts.json"
     path.write_text(json.dumps({"parts": "ab", "face_labels": [0, 1]}))
