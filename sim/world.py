@@ -146,7 +146,9 @@ class World:
         if model.urdf_path is None or not Path(model.urdf_path).is_file():
             raise ValueError(f"object {model.object_id!r} has no URDF file (urdf_path={model.urdf_path})")
         position, orientation = pose_to_pb(T_world_obj)
-        body = self.client.loadURDF(str(model.urdf_path), position, orientation)
+        body = self.client.loadURDF(
+            str(model.urdf_path), position, orientation, flags=pybullet.URDF_USE_INERTIA_FROM_FILE
+        )
         self.client.changeDynamics(
             body, -1, lateralFriction=float(model.friction), spinningFriction=0.001, rollingFriction=0.0001,
         )
