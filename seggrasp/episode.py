@@ -194,7 +194,8 @@ class ObjectSegmenter:
             if self.gt_labels is not None:
                 gt = PartLabels(self.prompts, self.prepared.from_source(self.gt_labels))
             detector = self.detector.build(gt)
-            config = SegmentationConfig(refine="none", seed=self.seed)
+            # The camera rig is part of what the detector sees: it follows the detector's seed.
+            config = SegmentationConfig(refine="none", seed=self.detector.seed)
             result = segment(self.prepared, self.prompts, detector, config)
             self._coarse = np.asarray(result.coarse_scores, dtype=np.float64)
         return self._coarse

@@ -160,9 +160,6 @@ def test_quick_evaluation_is_complete(quick_run) -> None:
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="GeoFusion (seggrasp.fusion at 0e2ca12) with the `typical` simulated detector "
-                   "selects worse parts than coarse voting on the quick set (Part Sel. 0.25 vs 0.75, measured "
-                   "2026-11-22); the issue requires seggrasp >= coarse")
 def test_quick_part_selection_orders_oracle_seggrasp_coarse(quick_run) -> None:
     _, summary, _ = quick_run
     part_sel = {m: summary["methods"][m]["part_selection"] for m in ("oracle", "seggrasp", "coarse")}
