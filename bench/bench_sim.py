@@ -19,7 +19,8 @@ import numpy as np
 from PIL import Image
 
 from seggrasp.io import atomic_write_bytes
-from sim.cameras import VirtualD435, look_at
+from seggrasp.views import look_at
+from sim.cameras import VirtualD435
 from sim.cell import SimCell
 from sim.primitives import primitive_object
 

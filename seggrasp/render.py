@@ -42,7 +42,7 @@ from OpenGL import GL  # noqa: E402
 from pyrender.shader_program import ShaderProgramCache  # noqa: E402
 
 from seggrasp.mesh import unit_normalisation  # noqa: E402
-from seggrasp.views import View  # noqa: E402
+from seggrasp.views import View, look_at  # noqa: E402
 
 logger = logging.getLogger(__name__)
 
@@ -79,23 +79,6 @@ def intrinsics(image_size: int, distance: float = CAMERA_DISTANCE) -> np.ndarray
     focal = 0.5 * image_size / math.tan(0.5 * field_of_view(distance))
     centre = 0.5 * image_size
     return np.array([[focal, 0.0, centre], [0.0, focal, centre], [0.0, 0.0, 1.0]])
-
-
-def look_at(position: np.ndarray, target: np.ndarray | None = None, up: np.ndarray | None = None) -> np.ndarray:
-    """T_world_cam (OpenCV axes) of a camera at `position` looking at `target` with image-up towards `up`."""
-    position = np.asarray(position, dtype=float)
-    target = np.zeros(3) if target is None else np.asarray(target, dtype=float)
-    up = np.array([0.0, 0.0, 1.0]) if up is None else np.asarray(up, dtype=float)
-    forward = target - position
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    if np.linalg.norm(right) < 1e-9:
-        raise ValueError("camera looks along its up vector; choose another up")
-    right /= np.linalg.norm(right)
-    down = np.cross(forward, right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, forward, position
-    return pose
 
 
 def camera_rig(n_views: int = 10, seed: int = 0, distance: float = CAMERA_DISTANCE) -> list[np.ndarray]:

@@ -49,21 +49,6 @@ def intrinsics(width: int = D435_WIDTH, height: int = D435_HEIGHT) -> np.ndarray
     return np.array([[D435_FOCAL * scale, 0, (width - 1) / 2], [0, D435_FOCAL * scale, (height - 1) / 2], [0, 0, 1.0]])
 
 
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
-    """`T_world_cam` (OpenCV) of a camera at `eye` looking at `target` with image-up roughly along `up`."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-6:
-        raise ValueError("camera looks along its up vector; choose another up")
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
-    return T
-
-
 def projection_matrix(K: np.ndarray, width: int, height: int, near: float = RENDER_NEAR, far: float = RENDER_FAR) -> np.ndarray:
     """OpenGL projection matrix under which PyBullet's TinyRenderer images follow pinhole `K` exactly.
 

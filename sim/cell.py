@@ -28,7 +28,8 @@ from scipy.spatial.transform import Rotation
 from seggrasp.cell import Frame, GraspOutcome
 from seggrasp.objects import ObjectModel
 from seggrasp.perception import Workspace
-from sim.cameras import DepthNoise, VirtualD435, look_at
+from seggrasp.views import look_at
+from sim.cameras import DepthNoise, VirtualD435
 from sim.gripper import MAX_WIDTH, FloatingGripper, GripperSettings
 from sim.robot import ArmSettings, UR5Arm
 from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSettings, World

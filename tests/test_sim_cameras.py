@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from sim.cameras import DepthNoise, VirtualD435, backproject, depth_rms, intrinsics, look_at
+from seggrasp.views import look_at
+from sim.cameras import DepthNoise, VirtualD435, backproject, depth_rms, intrinsics
 from sim.cell import SimCell
 from sim.primitives import primitive_object
 

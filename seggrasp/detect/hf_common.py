@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Sequence, TypeVar
+from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 
@@ -71,6 +72,40 @@ def load_pretrained(loader: Callable[[str], T], source: str, model: str, example
         raise WeightsNotFoundError(
             f"could not load the {model} {part} from {where}{mode}: {exc}\n" + _how_to_provide(model, example_hub_id)
         ) from exc
+
+
+@dataclass
+class LoadedDetector:
+    """The pieces of a transformers detector loaded from one source, in eval mode on `device`."""
+
+    source: str
+    image_processor: Any
+    tokenizer: Any
+    model: Any
+    device: Any
+
+
+def load_detector(
+    weights: str | os.PathLike, image_processor_cls: Any, model_cls: Any, model: str, example_hub_id: str,
+    device: str, batch_size: int,
+) -> LoadedDetector:
+    """Resolve `weights`, load image processor, tokenizer and model with clear errors, and check `batch_size`."""
+    import torch
+    from transformers import AutoTokenizer
+
+    if batch_size < 1:
+        raise ValueError(f"batch_size must be at least 1, got {batch_size}")
+    source = resolve_weights(weights, model, example_hub_id)
+    loaded = LoadedDetector(
+        source=source,
+        image_processor=load_pretrained(image_processor_cls.from_pretrained, source, model, example_hub_id,
+                                        "image processor"),
+        tokenizer=load_pretrained(AutoTokenizer.from_pretrained, source, model, example_hub_id, "tokenizer"),
+        model=load_pretrained(model_cls.from_pretrained, source, model, example_hub_id, "model"),
+        device=torch.device(device),
+    )
+    loaded.model.to(loaded.device).eval()
+    return loaded
 
 
 def clean_prompts(prompts: Sequence[str]) -> list[str]:

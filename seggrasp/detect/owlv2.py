@@ -23,9 +23,8 @@ from seggrasp.detect.hf_common import (
     clean_prompts,
     cxcywh_to_xyxy,
     has_area,
-    load_pretrained,
+    load_detector,
     nms_per_prompt,
-    resolve_weights,
     view_images,
 )
 from seggrasp.views import View
@@ -53,24 +52,18 @@ class OwlV2:
         batch_size: int = 2,
         nms_iou: float | None = 0.3,
     ) -> None:
-        from transformers import AutoTokenizer, Owlv2ForObjectDetection, Owlv2ImageProcessorPil
+        from transformers import Owlv2ForObjectDetection, Owlv2ImageProcessorPil
 
         self.score_threshold = check_unit_interval(score_threshold, "score_threshold")
         self.nms_iou = None if nms_iou is None else check_unit_interval(nms_iou, "nms_iou")
-        if batch_size < 1:
-            raise ValueError(f"batch_size must be at least 1, got {batch_size}")
-        self.batch_size = int(batch_size)
-        self.device = torch.device(device)
-        source = resolve_weights(weights, MODEL, EXAMPLE_HUB_ID)
-        self.weights = source
-        self.image_processor = load_pretrained(
-            Owlv2ImageProcessorPil.from_pretrained, source, MODEL, EXAMPLE_HUB_ID, "image processor"
+        loaded = load_detector(
+            weights, Owlv2ImageProcessorPil, Owlv2ForObjectDetection, MODEL, EXAMPLE_HUB_ID, device, batch_size
         )
-        self.tokenizer = load_pretrained(AutoTokenizer.from_pretrained, source, MODEL, EXAMPLE_HUB_ID, "tokenizer")
-        self.model = load_pretrained(Owlv2ForObjectDetection.from_pretrained, source, MODEL, EXAMPLE_HUB_ID, "model")
-        self.model.to(self.device).eval()
+        self.batch_size = int(batch_size)
+        self.weights, self.device = loaded.source, loaded.device
+        self.image_processor, self.tokenizer, self.model = loaded.image_processor, loaded.tokenizer, loaded.model
         self.max_text_len = int(self.model.config.text_config.max_position_embeddings)
-        logger.info("loaded %s from %s on %s", MODEL, Path(source).name or source, self.device)
+        logger.info("loaded %s from %s on %s", MODEL, Path(self.weights).name or self.weights, self.device)
 
     def detect(self, views: Sequence[View], prompts: Sequence[str]) -> list[Detections]:
         """One `Detections` per view, boxes in pixel xyxy of `view.rgb`, `prompt_index` into `prompts`."""
