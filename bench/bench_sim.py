@@ -22,18 +22,7 @@ from seggrasp.io import atomic_write_bytes
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
 from sim.cell import SimCell
-from sim.primitives import primitive_object
-
-
-def top_down_grasp(T_world_obj: np.ndarray, height: float) -> np.ndarray:
-    """Approach straight down onto the object's origin + `height`, closing along the object's x axis."""
-    x = T_world_obj[:3, 0] * [1.0, 1.0, 0.0]
-    x /= np.linalg.norm(x)
-    z = np.array([0.0, 0.0, -1.0])
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(z, x), z
-    T[:3, 3] = T_world_obj[:3, 3] + [0.0, 0.0, height]
-    return T
+from sim.primitives import primitive_object, top_down_grasp
 
 
 def bench_embodiment(box, embodiment: str, trials: int) -> dict[str, float]:

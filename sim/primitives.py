@@ -67,3 +67,14 @@ def primitive_object(
         center_of_mass=com, inertia=inertia, collision_hulls=[mesh.convex_hull], labels=_labels_by_normal(mesh),
         mesh_path=mesh_path, collision_path=mesh_path, urdf_path=urdf_path,
     )
+
+
+def top_down_grasp(T_world_obj: np.ndarray, height: float) -> np.ndarray:
+    """Gripper pose above the object's origin: approach straight down, closing along the object's x axis."""
+    x = T_world_obj[:3, 0] * [1.0, 1.0, 0.0]
+    x /= np.linalg.norm(x)
+    z = np.array([0.0, 0.0, -1.0])
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(z, x), z
+    T[:3, 3] = T_world_obj[:3, 3] + [0.0, 0.0, height]
+    return T

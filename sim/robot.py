@@ -185,24 +185,28 @@ class UR5Arm:
         """Track joint waypoints `PATH_RESOLUTION` m apart at Cartesian `speed` (m/s), slowed where a joint would
         exceed the joint speed limit; joint targets are interpolated every physics step."""
         dt = self.world.physics.time_step
-        q = self.q_commanded.copy()
-        for q_next in path:
-            duration = max(PATH_RESOLUTION / speed, np.abs(q_next - q).max() / self.settings.max_joint_speed)
-            steps = max(1, int(round(duration / dt)))
-            velocity = (q_next - q) / (steps * dt)
-            for k in range(1, steps + 1):
-                self._command(q + (q_next - q) * k / steps, velocity)
-                if on_step is not None:
-                    on_step()
-                self.world.step()
-            q = q_next
+
+        def steps_for(dq: np.ndarray) -> int:
+            duration = max(PATH_RESOLUTION / speed, np.abs(dq).max() / self.settings.max_joint_speed)
+            return max(1, int(round(duration / dt)))
+
+        self._track(path, steps_for, on_step)
 
     def move_free(self, path: list[np.ndarray], on_step=None) -> None:
         """Follow a free-space joint path at the joint speed limit (simulated)."""
         dt = self.world.physics.time_step
+
+        def steps_for(dq: np.ndarray) -> int:
+            return max(1, int(np.ceil(np.abs(dq).max() / self.settings.max_joint_speed / dt)))
+
+        self._track(path, steps_for, on_step)
+
+    def _track(self, path: list[np.ndarray], steps_for, on_step=None) -> None:
+        """Interpolate joint targets every physics step towards each waypoint, in `steps_for(q_next - q)` steps."""
+        dt = self.world.physics.time_step
         q = self.q_commanded.copy()
         for q_next in path:
-            steps = max(1, int(np.ceil(np.abs(q_next - q).max() / self.settings.max_joint_speed / dt)))
+            steps = steps_for(q_next - q)
             velocity = (q_next - q) / (steps * dt)
             for k in range(1, steps + 1):
                 self._command(q + (q_next - q) * k / steps, velocity)

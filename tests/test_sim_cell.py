@@ -6,7 +6,7 @@ import pytest
 from seggrasp.cell import Cell
 from sim.cell import GraspPrimitive, SimCell
 from sim.robot import HOME_Q
-from sim.primitives import primitive_object
+from sim.primitives import primitive_object, top_down_grasp
 
 IMAGE = (160, 120)
 
@@ -14,17 +14,6 @@ IMAGE = (160, 120)
 @pytest.fixture(scope="module")
 def box(tmp_path_factory):
     return primitive_object("box", (0.05, 0.05, 0.08), tmp_path_factory.mktemp("objects"), mass=0.2)
-
-
-def top_down_grasp(T_world_obj: np.ndarray, height: float) -> np.ndarray:
-    """Gripper pose above the object's origin: approach straight down, closing along the object's x axis."""
-    x = T_world_obj[:3, 0] * [1.0, 1.0, 0.0]
-    x /= np.linalg.norm(x)
-    z = np.array([0.0, 0.0, -1.0])
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2] = x, np.cross(z, x), z
-    T[:3, 3] = T_world_obj[:3, 3] + [0.0, 0.0, height]
-    return T
 
 
 @pytest.fixture(scope="module", params=["arm", "floating"])

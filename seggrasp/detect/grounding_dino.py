@@ -119,7 +119,8 @@ class GroundingDino:
         self.text_threshold = check_unit_interval(text_threshold, "text_threshold")
         self.nms_iou = None if nms_iou is None else check_unit_interval(nms_iou, "nms_iou")
         loaded = load_detector(
-            weights, GroundingDinoImageProcessorPil, GroundingDinoForObjectDetection, MODEL, EXAMPLE_HUB_ID, device, batch_size
+            weights, GroundingDinoImageProcessorPil, GroundingDinoForObjectDetection, MODEL, EXAMPLE_HUB_ID,
+            device, batch_size,
         )
         self.batch_size = int(batch_size)
         self.weights, self.device = loaded.source, loaded.device
