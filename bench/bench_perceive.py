@@ -23,7 +23,6 @@ os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
-from scipy.spatial import cKDTree  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -32,7 +31,7 @@ from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.io import atomic_write_json  # noqa: E402
 from seggrasp.labels import PartLabels  # noqa: E402
 from seggrasp.mesh import prepare_mesh  # noqa: E402
-from seggrasp.metrics import shape_miou  # noqa: E402
+from seggrasp.metrics import shape_miou, surface_distances  # noqa: E402
 from seggrasp.perception import PerceptionConfig, Workspace, perceive_object  # noqa: E402
 from seggrasp.segment import SegmentationConfig, segment  # noqa: E402
 
@@ -54,15 +53,6 @@ def transfer_labels(source: trimesh.Trimesh, source_labels: np.ndarray, target: 
     """Label of every target face = label of the source face nearest to its centre."""
     _, _, nearest_face = trimesh.proximity.closest_point(source, target.triangles_center)
     return np.asarray(source_labels)[nearest_face]
-
-
-def surface_distances(a: trimesh.Trimesh, b: trimesh.Trimesh, n: int = 20000) -> tuple[float, float]:
-    """Mean symmetric surface distance (Chamfer) and the 95th percentile of both directions, metres."""
-    pa, _ = trimesh.sample.sample_surface_even(a, n, seed=1)
-    pb, _ = trimesh.sample.sample_surface_even(b, n, seed=2)
-    d_ab, _ = cKDTree(pb).query(pa)
-    d_ba, _ = cKDTree(pa).query(pb)
-    return float((d_ab.mean() + d_ba.mean()) / 2), float(np.percentile(np.concatenate([d_ab, d_ba]), 95))
 
 
 def segmentation_miou(

@@ -43,15 +43,10 @@ EYE_IN_HAND_METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_E
 def load_extrinsics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     """Read a calibration file: {"T_world_cam": {serial: 4x4}, "T_gripper_cam": {serial: 4x4}} (either may be
     empty, not both); raises `ValueError` naming the file and the entry on bad input."""
-    from hardware.config import transform_from_config  # local import: config imports this module lazily too
+    from hardware.config import read_yaml, transform_from_config  # local: config imports this module lazily too
 
     path = Path(path)
-    if not path.is_file():
-        raise ValueError(f"calibration file {path} not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ValueError(f"calibration file {path} is not valid YAML: {exc}") from None
+    data = read_yaml(path, "calibration file")
     if not isinstance(data, dict):
         data = {}
     extrinsics: dict[str, dict[str, np.ndarray]] = {}

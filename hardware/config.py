@@ -253,13 +253,18 @@ def load_config(path: str | Path, *, require_calibration: bool = True) -> CellCo
     may be absent or incomplete; uncalibrated cameras get `T_mount_cam` = identity.
     """
     path = Path(path)
-    if not path.is_file():
-        raise ConfigError(f"{path}: cell configuration file not found")
-    try:
-        data = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    data = read_yaml(path, "cell configuration file", ConfigError)
     return parse_config(data, path, require_calibration=require_calibration)
+
+
+def read_yaml(path: Path, what: str, error: type[ValueError] = ValueError) -> Any:
+    """Parse a YAML file; a missing file or bad YAML raises `error` naming `what` and the path."""
+    if not path.is_file():
+        raise error(f"{what} {path} not found")
+    try:
+        return yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise error(f"{what} {path} is not valid YAML: {exc}") from None
 
 
 def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> CellConfig:

@@ -162,7 +162,8 @@ class ObjectSegmenter:
     the decomposition sweep and the fusion then run on `mesh` itself, in its own face order, which is the mesh the
     bundled decomposition caches (assets/decompositions/) were computed for. `gt_labels` (prompt indices per face
     of `mesh`, -1 elsewhere) feed the simulated detector and the oracle; `coarse_scores` (from an earlier run with
-    the same object, detector and seed) skips rendering and detection.
+    the same object, detector and seed) skips rendering and detection. `seed` seeds the decomposition sweep; the
+    camera rig and the detector's draws follow `detector.seed`.
     """
 
     def __init__(

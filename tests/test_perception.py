@@ -10,10 +10,10 @@ import numpy as np  # noqa: E402
 import pyrender  # noqa: E402
 import pytest  # noqa: E402
 import trimesh  # noqa: E402
-from scipy.spatial import cKDTree  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
 from seggrasp.cell import Frame  # noqa: E402
+from seggrasp.metrics import surface_distances  # noqa: E402
 from seggrasp.perception import (  # noqa: E402
     PerceptionConfig,
     Workspace,
@@ -108,15 +108,6 @@ def place(mesh: trimesh.Trimesh, yaw: float = 0.4) -> trimesh.Trimesh:
     return placed
 
 
-def chamfer(a: trimesh.Trimesh, b: trimesh.Trimesh, n: int = 20000) -> tuple[float, float]:
-    """Mean symmetric surface distance and the 95th percentile of both directions."""
-    pa, _ = trimesh.sample.sample_surface_even(a, n, seed=1)
-    pb, _ = trimesh.sample.sample_surface_even(b, n, seed=2)
-    d_ab, _ = cKDTree(pb).query(pa)
-    d_ba, _ = cKDTree(pa).query(pb)
-    return float((d_ab.mean() + d_ba.mean()) / 2), float(np.percentile(np.concatenate([d_ab, d_ba]), 95))
-
-
 @pytest.fixture(scope="module")
 def mug_scene() -> tuple[trimesh.Trimesh, list[Frame]]:
     truth = place(make_mug())
@@ -126,7 +117,7 @@ def mug_scene() -> tuple[trimesh.Trimesh, list[Frame]]:
 def test_perceived_mug_matches_ground_truth(mug_scene):
     truth, frames = mug_scene
     mesh = perceive_object(frames, WORKSPACE, seed=0)
-    mean_distance, p95 = chamfer(mesh, truth)
+    mean_distance, p95 = surface_distances(mesh, truth)
     print(f"chamfer mean {mean_distance * 1000:.2f} mm, p95 {p95 * 1000:.2f} mm, faces {len(mesh.faces)}")
     assert mesh.is_watertight, "the hidden bottom must be closed"
     assert mean_distance < 0.002
@@ -189,12 +180,12 @@ def test_reconstruct_from_points_alone_orients_normals_itself():
     assert mesh.is_watertight
     np.testing.assert_allclose(mesh.bounds, truth.bounds, atol=0.004)
     assert abs(mesh.volume - truth.volume) / truth.volume < 0.1
-    assert chamfer(mesh, truth)[0] < 0.0015
+    assert surface_distances(mesh, truth)[0] < 0.0015
     coarse = reconstruct_mesh(points, table_plane=(np.array([0.0, 0.0, 1.0]), TABLE_HEIGHT),
                               config=PerceptionConfig(target_faces=len(mesh.faces) // 4))
     assert coarse.is_watertight, "a face budget coarsens the grid and keeps the surface closed"
     assert len(coarse.faces) < 0.4 * len(mesh.faces)
-    assert chamfer(coarse, truth)[0] < 0.003
+    assert surface_distances(coarse, truth)[0] < 0.003
 
 
 def test_things_above_the_table_are_not_the_object(mug_scene):
@@ -244,7 +235,7 @@ def test_perceives_the_twin_mug_from_the_simulated_cameras():
     truth = mesh_obj.copy()
     truth.apply_transform(T_world_obj)
     mesh = perceive_object(frames, workspace, seed=0)
-    mean_distance, _ = chamfer(mesh, truth)
+    mean_distance, _ = surface_distances(mesh, truth)
     print(f"twin mug from SimCell: chamfer mean {mean_distance * 1000:.2f} mm, faces {len(mesh.faces)}")
     assert mesh.is_watertight
     assert mean_distance < 0.004
