@@ -18,12 +18,11 @@ from pathlib import Path
 import numpy as np
 
 from seggrasp.detect import DETECTOR_NAMES, make_detector
+from seggrasp.fusion import REFINE_MODES
 from seggrasp.io import atomic_save_npy, atomic_write_json
 from seggrasp.labels import PartLabels, read_labels, write_labels
 from seggrasp.mesh import PreparedMesh, load_mesh
 
-#: Refinement modes of `seggrasp.fusion.refine_scores`, offered on the command line.
-REFINE_CHOICES = ("none", "multi", "opt", "full", "spread")
 EXIT_BAD_INPUT = 2
 
 
@@ -45,8 +44,10 @@ def build_parser() -> argparse.ArgumentParser:
                           "when given the per-part IoU and mIoU are printed")
     seg.add_argument("--views", type=int, default=10, help="number of rendered views (default 10)")
     seg.add_argument("--image-size", type=int, default=512, help="rendered image size in pixels (default 512)")
-    seg.add_argument("--refine", choices=REFINE_CHOICES, default="full",
+    seg.add_argument("--refine", choices=REFINE_MODES, default="full",
                      help="refinement after voting (default full GeoFusion; none = coarse votes only)")
+    seg.add_argument("--no-anchor", dest="anchor", action="store_false",
+                     help="keep the argmax labels of the refined scores (no prompt anchoring; the paper's GeoFusion)")
     seg.add_argument("--decomposition", choices=("fast", "reference"), default="fast",
                      help="CoACD sweep mode for refinement (default fast)")
     seg.add_argument("--cache-dir", type=Path, help="decomposition cache folder (default: the user cache)")
@@ -91,7 +92,7 @@ def run_segment(args: argparse.Namespace) -> dict:
 
         decomposition = DecompositionConfig(mode=args.decomposition, seed=args.seed)
     config = SegmentationConfig(n_views=args.views, image_size=args.image_size, refine=args.refine,
-                                decomposition=decomposition, cache_dir=args.cache_dir, workers=args.workers,
+                                anchor=args.anchor, decomposition=decomposition, cache_dir=args.cache_dir, workers=args.workers,
                                 seed=args.seed)
     result = segment(prepared, prompts, detector, config)
 
@@ -112,6 +113,7 @@ def run_segment(args: argparse.Namespace) -> dict:
         "prompts": prompts,
         "detector": result.detector,
         "refine": result.refine,
+        "anchored": result.anchored,
         "views": args.views,
         "image_size": args.image_size,
         "seed": args.seed,

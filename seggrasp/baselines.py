@@ -2,22 +2,21 @@
 detector, one grasp at the chosen part's centroid, top-down, with a fixed rotation.
 
 ShapeGrasp reasons over the convex parts of one decomposition. Here the parts are those of the coarsest partition of
-the decomposition sweep that has at least one part per prompt (`choose_partition`), and the part for each prompt is
-chosen from the area-weighted mean of the detector's votes (the same coarse vote matrix S the other methods start
-from), one distinct part per prompt (`assign_parts_to_prompts`), so the comparison isolates the geometry: whole
-convex parts and a fixed top-down grasp instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU)
+the decomposition sweep that has at least one part per prompt (`seggrasp.fusion.coarsest_with_parts`), and the part
+for each prompt is chosen from the area-weighted mean of the detector's votes (the same coarse vote matrix S the
+other methods start from), one distinct part per prompt (`seggrasp.fusion.assign_parts_to_prompts`, the step
+SegGrasp's prompt anchoring shares), so the comparison isolates the geometry: whole convex parts and a fixed
+top-down grasp instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU)
 give the chosen parts their prompts and every other part its best-voted prompt.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Sequence
-
 import numpy as np
 import trimesh
-from scipy.optimize import linear_sum_assignment
 
+from seggrasp.fusion import assign_parts_to_prompts
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 from seggrasp.labels import UNKNOWN
 
@@ -27,54 +26,6 @@ LOG = logging.getLogger(__name__)
 SHAPEGRASP_CLOSING_AXIS = np.array([1.0, 0.0, 0.0])
 #: Height of the fingertips above the table top when a part's centroid is too low to grasp at.
 TABLE_CLEARANCE = 0.005
-
-
-def choose_partition(part_counts: Sequence[int], n_prompts: int) -> int:
-    """Index of the partition ShapeGrasp reasons over, given the parts per partition ordered finest first: the
-    coarsest one with at least one part per prompt (few, large convex parts, as ShapeGrasp's part graph has), or
-    the finest if none has that many."""
-    if len(part_counts) == 0:
-        raise ValueError("no partitions to choose from")
-    if n_prompts < 1:
-        raise ValueError(f"need at least one prompt, got {n_prompts}")
-    enough = [i for i, count in enumerate(part_counts) if count >= n_prompts]
-    return max(enough) if enough else 0
-
-
-def part_votes(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndarray) -> np.ndarray:
-    """(n_parts, P) area-weighted mean vote of each convex part for each prompt."""
-    scores = np.asarray(scores, dtype=np.float64)
-    part_of_face = np.asarray(part_of_face, dtype=np.int64)
-    face_areas = np.asarray(face_areas, dtype=np.float64)
-    if scores.ndim != 2 or not (len(scores) == len(part_of_face) == len(face_areas)):
-        raise ValueError(
-            f"need per-face scores (F, P), parts (F,) and areas (F,); got {scores.shape}, {part_of_face.shape}, "
-            f"{face_areas.shape}"
-        )
-    n_parts = int(part_of_face.max()) + 1
-    weighted = np.zeros((n_parts, scores.shape[1]))
-    np.add.at(weighted, part_of_face, scores * face_areas[:, None])
-    area = np.bincount(part_of_face, weights=face_areas, minlength=n_parts)
-    return weighted / np.maximum(area, 1e-18)[:, None]
-
-
-def assign_parts_to_prompts(votes: np.ndarray) -> np.ndarray:
-    """(P,) the part chosen for each prompt (-1 if it got no vote): distinct parts where there are enough, the
-    assignment maximising the summed votes after scaling each prompt's votes by their maximum (ShapeGrasp names
-    each convex part once, so two prompts do not share a part)."""
-    votes = np.asarray(votes, dtype=np.float64)
-    voted = (votes > 0).any(axis=0)
-    chosen = np.full(votes.shape[1], UNKNOWN, dtype=np.int64)
-    prompts = np.flatnonzero(voted)
-    if len(prompts) == 0:
-        return chosen
-    scaled = votes[:, prompts] / votes[:, prompts].max(axis=0)
-    if votes.shape[0] >= len(prompts):
-        parts, columns = linear_sum_assignment(-scaled)
-        chosen[prompts[columns]] = parts
-    else:  # fewer parts than prompts: each prompt takes its best part
-        chosen[prompts] = np.argmax(scaled, axis=0)
-    return chosen
 
 
 def shapegrasp_labels(votes: np.ndarray, part_of_face: np.ndarray) -> np.ndarray:

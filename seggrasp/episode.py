@@ -7,9 +7,11 @@ each one from a fresh reset of the same scene. Every trial becomes one `TrialRec
 
 Methods (every record names its method and its detector):
 
-- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation), the full method;
+- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + prompt anchoring
+  (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part), the full method;
 - `coarse`: coarse voting only (the paper's baseline), the same grasps;
-- `multi`, `opt`: the ablations (multi-fusion only, fine-grained optimisation only);
+- `multi`, `opt`, `geofusion`: the ablations (multi-fusion only, fine-grained optimisation only, both = the paper's
+  GeoFusion without prompt anchoring);
 - `spread`: GeoSpreading (the paper's single-decomposition spreading), for the threshold study;
 - `oracle`: the ground-truth labels (needs a labelled object), the ceiling;
 - `shapegrasp`: seggrasp/baselines.py (convex parts, top-down grasp at the chosen part's centroid).
@@ -31,24 +33,27 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from seggrasp.baselines import choose_partition, part_votes, shapegrasp_grasps, shapegrasp_labels
+from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.decompose import DecompositionConfig, Partition, decompose_sweep
 from seggrasp.detect import make_detector
 from seggrasp.detect.base import Detector
-from seggrasp.fusion import refine_scores
-from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, assign_parts, select_on_part
+from seggrasp.fusion import coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
+from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.select import TOP_K
 from seggrasp.labels import PartLabels
 from seggrasp.mesh import prepare_mesh
 from seggrasp.objects import ObjectModel
 from seggrasp.segment import SegmentationConfig, segment
-from seggrasp.vote import labels_from_scores
 
 LOG = logging.getLogger(__name__)
 
-REFINE_MODE_OF_METHOD = {"coarse": "none", "multi": "multi", "opt": "opt", "seggrasp": "full", "spread": "spread"}
-METHODS = ("seggrasp", "coarse", "multi", "opt", "spread", "oracle", "shapegrasp")
+#: (refinement mode of `seggrasp.fusion.refine_scores`, prompt anchoring) of every method that labels by votes.
+REFINEMENT_OF_METHOD = {
+    "coarse": ("none", False), "multi": ("multi", False), "opt": ("opt", False), "geofusion": ("full", False),
+    "seggrasp": ("full", True), "spread": ("spread", False),
+}
+METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "spread", "oracle", "shapegrasp")
 
 
 @dataclass(frozen=True)
@@ -84,12 +89,14 @@ class Observation:
 
 @dataclass
 class PartPlan:
-    """A method's per-face labels on the planning mesh and, for `shapegrasp`, its own grasps per prompt."""
+    """A method's per-face labels on the planning mesh, the refined scores behind them (None for ground truth), and,
+    for `shapegrasp`, its own grasps per prompt."""
 
     method: str
     detector: str
     labels: np.ndarray
     own_grasps: list[GraspSet] | None = None
+    scores: np.ndarray | None = None
 
 
 @dataclass
@@ -228,15 +235,14 @@ class ObjectSegmenter:
                 raise ValueError("the oracle method needs ground-truth labels; this object has none")
             return PartPlan(method, "ground-truth", self.gt_labels.copy())
         if method == "shapegrasp":
-            partitions = self.partitions()
-            counts = [int(p.part_of_face.max()) + 1 for p in partitions]
-            chosen = partitions[choose_partition(counts, len(self.prompts))]
-            part_of_face = chosen.part_of_face
-            votes = part_votes(self.coarse_scores(), part_of_face, self.mesh.area_faces)
+            part_of_face = coarsest_with_parts(self.partitions(), len(self.prompts)).part_of_face
+            votes = part_mean_scores(self.coarse_scores(), part_of_face, self.mesh.area_faces)
             grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)
             return PartPlan(method, self.detector.label, shapegrasp_labels(votes, part_of_face), grasps)
-        labels = labels_from_scores(self.refined_scores(REFINE_MODE_OF_METHOD[method]))
-        return PartPlan(method, self.detector.label, labels)
+        mode, anchor = REFINEMENT_OF_METHOD[method]
+        partitions = [] if mode == "none" else self.partitions()
+        scores, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, mode, anchor)
+        return PartPlan(method, self.detector.label, labels, scores=scores)
 
 
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
@@ -297,8 +303,9 @@ def plan_trials(
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(len(context.prompts))]
     else:
-        parts = assign_parts(grasps, observation.mesh, plan.labels)
-        per_prompt = [grasps.subset(select_on_part(grasps, parts, k, top_k)) for k in range(len(context.prompts))]
+        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.labels, len(context.prompts), top_k,
+                                              plan.scores)
+        per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:
         chosen = per_prompt[k].transformed(observation.T_world_obj)

@@ -35,6 +35,19 @@ over meshes and seeds; coarse = 0.389. Values: multi / full, with the fast sweep
   pull faces to the majority label; multi-fusion then falls below coarse.
 So the literal reading is both the paper's formula and the best of the three here. (GeoSpreading on the same data:
 fast 0.499, reference 0.504.)
+
+Prompt anchoring (`anchor_prompts`, on by default in `seggrasp.segment` and in the `seggrasp` method; not part of
+the paper). The argmax labelling lets a small part lose every face: boxes around a big part (or around the whole
+object, a detector's most common failure on part prompts) also cover the small part, so its faces collect more votes
+for the big part's prompt than for their own. On the twin with the `typical` detector (29 objects x 4 run seeds,
+per-object detector seeds, bundled fast sweeps) 49 of 244 prompted parts came out of full GeoFusion with no face at
+all, and the episode then has no grasp for that prompt. Every prompt names a part the object has, and a part is a
+geometric unit: anchoring takes the coarsest decomposition with at least one part per prompt, scales each prompt's
+area-weighted part scores by that prompt's best part, and gives every prompt its own part (the assignment with the
+largest summed scaled score, `assign_parts_to_prompts`); the faces of those parts take their prompt, every other
+face keeps its GeoFusion label. Measured (category-mean mIoU, mean of run seeds 0-3): coarse 0.422, GeoFusion
+0.535, GeoFusion + anchoring 0.667; anchoring on the finest decomposition instead gives 0.568 (one small piece per
+prompt), per-prompt scaling of every face's scores instead of anchoring 0.510.
 """
 
 from __future__ import annotations
@@ -43,7 +56,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from scipy.optimize import linear_sum_assignment
+
 from seggrasp.decompose import Partition
+from seggrasp.vote import labels_from_scores
 
 REFINE_MODES = ("none", "multi", "opt", "full", "spread")
 NORMALISATIONS = ("literal", "area_mean", "partition_mean")
@@ -68,6 +84,14 @@ def _check_inputs(scores: np.ndarray, partitions: Sequence[Partition], face_area
 
 def part_mean_scores(scores: np.ndarray, part_of_face: np.ndarray, face_areas: np.ndarray) -> np.ndarray:
     """(K, P) area-weighted mean score of every part (zero for a part of zero area)."""
+    scores = np.asarray(scores, dtype=np.float64)
+    part_of_face = np.asarray(part_of_face, dtype=np.int64)
+    face_areas = np.asarray(face_areas, dtype=np.float64)
+    if scores.ndim != 2 or not (len(scores) == len(part_of_face) == len(face_areas)):
+        raise ValueError(
+            f"need per-face scores (F, P), parts (F,) and areas (F,); got {scores.shape}, {part_of_face.shape}, "
+            f"{face_areas.shape}"
+        )
     n_parts = int(part_of_face.max()) + 1
     weighted = np.zeros((n_parts, scores.shape[1]))
     np.add.at(weighted, part_of_face, scores * face_areas[:, None])
@@ -149,3 +173,69 @@ def refine_scores(
     if mode == "full":
         return fine_grained(multi_fusion(scores, partitions, face_areas, normalisation), finest, face_areas)
     return geo_spreading(scores, partitions, face_areas)
+
+
+def coarsest_with_parts(partitions: Sequence[Partition], n_prompts: int) -> Partition:
+    """The coarsest partition with at least one part per prompt (the finest if none has that many)."""
+    if len(partitions) == 0:
+        raise ValueError("no partitions to choose from")
+    if n_prompts < 1:
+        raise ValueError(f"need at least one prompt, got {n_prompts}")
+    by_fineness = sorted(partitions, key=lambda p: p.threshold)
+    enough = [p for p in by_fineness if p.n_parts >= n_prompts]
+    return enough[-1] if enough else by_fineness[0]
+
+
+def assign_parts_to_prompts(part_scores: np.ndarray) -> np.ndarray:
+    """(P,) the part chosen for each prompt from (K, P) part scores, -1 for a prompt no part scores for.
+
+    Each prompt's scores are scaled by their maximum, then distinct parts go to the prompts (the assignment with
+    the largest summed scaled score); with fewer parts than prompts each prompt takes its best part.
+    """
+    part_scores = np.asarray(part_scores, dtype=np.float64)
+    chosen = np.full(part_scores.shape[1], -1, dtype=np.int64)
+    prompts = np.flatnonzero((part_scores > 0).any(axis=0))
+    if len(prompts) == 0:
+        return chosen
+    scaled = part_scores[:, prompts] / part_scores[:, prompts].max(axis=0)
+    if part_scores.shape[0] >= len(prompts):
+        parts, columns = linear_sum_assignment(-scaled)
+        chosen[prompts[columns]] = parts
+    else:
+        chosen[prompts] = np.argmax(scaled, axis=0)
+    return chosen
+
+
+def anchor_prompts(
+    labels: np.ndarray, scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray
+) -> np.ndarray:
+    """Labels in which every prompt owns at least one convex part (module docstring, "Prompt anchoring").
+
+    On the coarsest partition with a part per prompt, the parts `assign_parts_to_prompts` gives the prompts (from
+    the area-weighted part means of `scores`) take those prompts; every other face keeps its label from `labels`.
+    """
+    scores = np.asarray(scores, dtype=np.float64)
+    anchored = np.asarray(labels, dtype=np.int64).copy()
+    _check_inputs(scores, partitions, np.asarray(face_areas, dtype=np.float64))
+    partition = coarsest_with_parts(partitions, scores.shape[1])
+    means = part_mean_scores(scores, partition.part_of_face, face_areas)
+    for prompt, part in enumerate(assign_parts_to_prompts(means)):
+        if part >= 0:
+            anchored[partition.part_of_face == part] = prompt
+    return anchored
+
+
+def refine_labels(
+    scores: np.ndarray,
+    partitions: Sequence[Partition],
+    face_areas: np.ndarray,
+    mode: str = "full",
+    anchor: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(refined scores, labels): `refine_scores`, its argmax, then (if `anchor` and there are partitions) prompt
+    anchoring on the refined scores."""
+    refined = refine_scores(scores, partitions, face_areas, mode)
+    labels = labels_from_scores(refined)
+    if anchor and partitions:
+        labels = anchor_prompts(labels, refined, partitions, face_areas)
+    return refined, labels

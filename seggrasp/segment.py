@@ -31,7 +31,8 @@ logger = logging.getLogger(__name__)
 class SegmentationConfig:
     """Settings of one segmentation run.
 
-    `refine` is a mode of `seggrasp.fusion.refine_scores` ("none" keeps the coarse votes); `decomposition`,
+    `refine` is a mode of `seggrasp.fusion.refine_scores` ("none" keeps the coarse votes); `anchor` gives every
+    prompt a convex part after refinement (`seggrasp.fusion.anchor_prompts`; ignored without refinement); `decomposition`,
     `cache_dir` and `workers` go to `seggrasp.decompose.decompose_sweep` (None: its defaults). `seed` turns the
     camera rig.
     """
@@ -39,6 +40,7 @@ class SegmentationConfig:
     n_views: int = 10
     image_size: int = DEFAULT_IMAGE_SIZE
     refine: str = "full"
+    anchor: bool = True
     decomposition: DecompositionConfig | None = None
     cache_dir: str | os.PathLike | None = None
     workers: int | None = None
@@ -58,7 +60,8 @@ class SegmentationResult:
     """Labels and scores of every input face, plus what produced them.
 
     `labels` (int, -1 = unknown) and `scores` (faces x prompts) follow the input file's face order, as do the
-    coarse (eq. 1 only) versions. `views`, `detections` and `partitions` refer to the working mesh's faces.
+    coarse (eq. 1 only) versions. Without anchoring `labels` is the row argmax of `scores`; anchored parts take
+    their prompt whatever their scores. `views`, `detections` and `partitions` refer to the working mesh's faces.
     `timings` holds seconds per stage ("render", "detect", "vote", and with refinement "decompose", "fusion").
     """
 
@@ -71,6 +74,7 @@ class SegmentationResult:
     detections: list[Detections]
     detector: str
     refine: str
+    anchored: bool = False
     partitions: list[Partition] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -98,7 +102,7 @@ def segment(
     prompts = check_prompts(prompts)
     if config.refine != "none":
         from seggrasp.decompose import decompose_sweep
-        from seggrasp.fusion import REFINE_MODES, refine_scores
+        from seggrasp.fusion import REFINE_MODES, refine_labels
 
         if config.refine not in REFINE_MODES:
             raise ValueError(f"unknown refine mode {config.refine!r}; choose one of {REFINE_MODES}")
@@ -119,14 +123,15 @@ def segment(
     coarse = vote(views, detections, len(working.faces), len(prompts))
     timings["vote"] = time.perf_counter() - start
 
-    scores, partitions = coarse, []
+    scores, labels, partitions = coarse, labels_from_scores(coarse), []
     if config.refine != "none":
         start = time.perf_counter()
         partitions = decompose_sweep(working, config.decomposition, Path(config.cache_dir) if config.cache_dir
                                      else None, config.workers)
         timings["decompose"] = time.perf_counter() - start
         start = time.perf_counter()
-        scores = refine_scores(coarse, partitions, np.asarray(working.area_faces), config.refine)
+        scores, labels = refine_labels(coarse, partitions, np.asarray(working.area_faces), config.refine,
+                                       config.anchor)
         timings["fusion"] = time.perf_counter() - start
 
     logger.info(
@@ -135,7 +140,7 @@ def segment(
     )
     return SegmentationResult(
         prompts=prompts,
-        labels=mesh.to_source(labels_from_scores(scores)),
+        labels=mesh.to_source(labels),
         scores=mesh.to_source(scores),
         coarse_labels=mesh.to_source(labels_from_scores(coarse)),
         coarse_scores=mesh.to_source(coarse),
@@ -143,6 +148,7 @@ def segment(
         detections=detections,
         detector=detector.name,
         refine=config.refine,
+        anchored=config.refine != "none" and config.anchor,
         partitions=partitions,
         timings=timings,
     )

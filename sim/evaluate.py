@@ -55,13 +55,13 @@ from seggrasp.metrics import mean_over_categories, part_ious, quaternion_varianc
 
 LOG = logging.getLogger("sim.evaluate")
 
-DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "oracle", "shapegrasp")
+DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "oracle", "shapegrasp")
 SIMULATED_PRESETS = ("perfect", "typical", "hard")
 REAL_DETECTORS = ("grounding-dino", "owlv2")
 QUICK_METHODS = ("oracle", "seggrasp", "coarse")
 QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
 QUICK_TOP_K = 3
-ABLATION_METHODS = ("coarse", "multi", "opt", "seggrasp")
+ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "seggrasp")
 #: Settings a resumed run must share with the run it continues.
 RESUME_KEYS = ("detector", "weights", "embodiment", "seed", "top_k", "backend", "perceive")
 
@@ -439,13 +439,15 @@ def markdown_report(summary: dict, header: dict) -> str:
                      f"{_fmt(m['success_all_slots'])} |")
     ablation = [a for a in ABLATION_METHODS if a in methods]
     if len(ablation) > 1:
-        flags = {"coarse": ("", ""), "multi": ("✓", ""), "opt": ("", "✓"), "seggrasp": ("✓", "✓")}
-        lines += ["", "## Table III — ablation", "", "| method | multi-fusion | fine-grained opt. | mIoU | Part Sel. | Suc. |",
-                  "|---|---|---|---|---|---|"]
+        flags = {"coarse": ("", "", ""), "multi": ("✓", "", ""), "opt": ("", "✓", ""), "geofusion": ("✓", "✓", ""),
+                 "seggrasp": ("✓", "✓", "✓")}
+        lines += ["", "## Table III — ablation", "",
+                  "| method | multi-fusion | fine-grained opt. | prompt anchoring | mIoU | Part Sel. | Suc. |",
+                  "|---|---|---|---|---|---|---|"]
         for name in ablation:
             m = methods[name]
             miou = m["miou"]["overall"] if "miou" in m else None
-            lines.append(f"| {name} | {flags[name][0]} | {flags[name][1]} | {_fmt(miou)} | "
+            lines.append(f"| {name} | {' | '.join(flags[name])} | {_fmt(miou)} | "
                          f"{_fmt(m.get('part_selection'))} | {_fmt(m.get('success'))} |")
     curve = summary.get("curve") or {}
     if curve.get("thresholds"):

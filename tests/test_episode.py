@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from seggrasp.baselines import part_votes, shapegrasp_grasps, shapegrasp_labels
+from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
+from seggrasp.fusion import part_mean_scores
 from seggrasp.episode import (
     DetectorSpec,
     EpisodeContext,
@@ -102,7 +103,7 @@ def test_shapegrasp_grasps_top_down_at_the_voted_part() -> None:
     scores[part_of_face == 1, 0] = 1.0
     scores[:, 1] = 0.2
     scores[part_of_face == 0, 1] = 0.9
-    votes = part_votes(scores, part_of_face, mesh.area_faces)
+    votes = part_mean_scores(scores, part_of_face, mesh.area_faces)
     assert np.array_equal(shapegrasp_labels(votes, part_of_face), np.where(part_of_face == 1, 0, 1))
     T_world_obj = np.eye(4)
     T_world_obj[:3, 3] = [0.5, 0.0, 0.0]
@@ -132,23 +133,3 @@ def test_perceived_episode_plans_on_the_camera_mesh(cell, cylinder) -> None:
                           workspace=cell.workspace)
     assert all(r.executed for r in records)
     assert any(r.success for r in records)  # labels transferred from the twin to the fused mesh select the side
-
-
-def test_shapegrasp_reasons_over_the_coarsest_partition_with_a_part_per_prompt() -> None:
-    from seggrasp.baselines import choose_partition
-
-    assert choose_partition([33, 2, 1], n_prompts=2) == 1
-    assert choose_partition([96, 46, 8], n_prompts=3) == 2
-    assert choose_partition([1, 1], n_prompts=2) == 0
-    with pytest.raises(ValueError, match="no partitions"):
-        choose_partition([], n_prompts=2)
-
-
-def test_shapegrasp_gives_each_prompt_its_own_part() -> None:
-    from seggrasp.baselines import assign_parts_to_prompts
-
-    # a whole-object box votes for both prompts on the big part 0; prompt 1 is relatively strongest on part 2
-    votes = np.array([[1.0, 0.9], [0.2, 0.1], [0.1, 0.6]])
-    assert assign_parts_to_prompts(votes).tolist() == [0, 2]
-    assert assign_parts_to_prompts(np.array([[1.0, 0.0], [0.5, 0.0]])).tolist() == [0, -1]
-    assert assign_parts_to_prompts(np.array([[1.0, 0.8]])).tolist() == [0, 0]  # one part for two prompts

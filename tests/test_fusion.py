@@ -8,7 +8,14 @@ import numpy as np
 import pytest
 
 from seggrasp.decompose import Partition
-from seggrasp.fusion import REFINE_MODES, refine_scores
+from seggrasp.fusion import (
+    REFINE_MODES,
+    anchor_prompts,
+    assign_parts_to_prompts,
+    coarsest_with_parts,
+    refine_labels,
+    refine_scores,
+)
 from seggrasp.vote import labels_from_scores
 
 AREAS = np.array([1.0, 1.0, 2.0, 2.0])
@@ -96,3 +103,49 @@ def test_bad_inputs_raise():
     for mode in REFINE_MODES[1:]:
         with pytest.raises(ValueError, match="decomposition"):
             refine_scores(SCORES, [], AREAS, mode)
+
+
+def test_coarsest_partition_with_a_part_per_prompt():
+    def parts(*counts):
+        return [Partition(0.01 * (i + 1), np.arange(8) % c) for i, c in enumerate(counts)]
+
+    assert coarsest_with_parts(parts(8, 2, 1), n_prompts=2).n_parts == 2
+    assert coarsest_with_parts(parts(8, 4, 3), n_prompts=3).n_parts == 3
+    assert coarsest_with_parts(parts(1, 1), n_prompts=2).threshold == 0.01  # none has enough: the finest
+    with pytest.raises(ValueError, match="no partitions"):
+        coarsest_with_parts([], n_prompts=2)
+
+
+def test_each_prompt_gets_its_own_part():
+    # a whole-object box votes for both prompts on the big part 0; prompt 1 is relatively strongest on part 2
+    votes = np.array([[1.0, 0.9], [0.2, 0.1], [0.1, 0.6]])
+    assert assign_parts_to_prompts(votes).tolist() == [0, 2]
+    assert assign_parts_to_prompts(np.array([[1.0, 0.0], [0.5, 0.0]])).tolist() == [0, -1]  # prompt 1: no votes
+    assert assign_parts_to_prompts(np.array([[1.0, 0.8]])).tolist() == [0, 0]  # one part for two prompts
+
+
+def test_anchoring_gives_a_small_part_its_prompt():
+    # Faces 0-5 are a big part (area 1 each), faces 6-7 a small one (area 0.25). The detector's boxes around the
+    # big part also cover the small one, so prompt 0 ("body") outvotes prompt 1 ("handle") on every face.
+    areas = np.r_[np.ones(6), 0.25, 0.25]
+    scores = np.zeros((8, 2))
+    scores[:, 0] = 1.0
+    scores[:6, 1] = 0.1
+    scores[6:, 1] = 0.8
+    fine = Partition(0.02, np.array([0, 0, 1, 1, 2, 2, 3, 3]))
+    coarse = Partition(0.1, np.array([0, 0, 0, 0, 0, 0, 1, 1]))
+    whole = Partition(0.2, np.zeros(8, dtype=int))
+    refined, plain = refine_labels(scores, [fine, coarse, whole], areas, "full", anchor=False)
+    assert (plain == 0).all()  # the argmax loses the small part entirely
+    _, anchored = refine_labels(scores, [fine, coarse, whole], areas, "full", anchor=True)
+    np.testing.assert_array_equal(anchored, [0, 0, 0, 0, 0, 0, 1, 1])
+    np.testing.assert_array_equal(anchor_prompts(plain, refined, [fine, coarse, whole], areas), anchored)
+
+
+def test_anchoring_keeps_labels_outside_the_anchored_parts():
+    # three parts at the coarsest useful level, two prompts: the third part keeps its GeoFusion label (-1 here)
+    scores = np.array([[1.0, 0.0], [1.0, 0.0], [0.0, 1.0], [0.0, 1.0], [0.0, 0.0], [0.0, 0.0]])
+    partition = Partition(0.1, np.array([0, 0, 1, 1, 2, 2]))
+    labels = np.array([0, 0, 1, 1, -1, -1])
+    np.testing.assert_array_equal(anchor_prompts(labels, scores, [partition], np.ones(6)), labels)
+
