@@ -7,11 +7,10 @@ each one from a fresh reset of the same scene. Every trial becomes one `TrialRec
 
 Methods (every record names its method and its detector):
 
-- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + prompt anchoring
-  (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part), the full method;
+- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation), the full method;
 - `coarse`: coarse voting only (the paper's baseline), the same grasps;
-- `multi`, `opt`, `geofusion`: the ablations (multi-fusion only, fine-grained optimisation only, both = the paper's
-  GeoFusion without prompt anchoring);
+- `multi`, `opt`: the ablations (multi-fusion only, fine-grained optimisation only);
+- `anchored`: GeoFusion + prompt anchoring (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part);
 - `spread`: GeoSpreading (the paper's single-decomposition spreading), for the threshold study;
 - `oracle`: the ground-truth labels (needs a labelled object), the ceiling;
 - `shapegrasp`: seggrasp/baselines.py (convex parts, top-down grasp at the chosen part's centroid).
@@ -50,10 +49,10 @@ LOG = logging.getLogger(__name__)
 
 #: (refinement mode of `seggrasp.fusion.refine_scores`, prompt anchoring) of every method that labels by votes.
 REFINEMENT_OF_METHOD = {
-    "coarse": ("none", False), "multi": ("multi", False), "opt": ("opt", False), "geofusion": ("full", False),
-    "seggrasp": ("full", True), "spread": ("spread", False),
+    "coarse": ("none", False), "multi": ("multi", False), "opt": ("opt", False), "seggrasp": ("full", False),
+    "anchored": ("full", True), "spread": ("spread", False),
 }
-METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "spread", "oracle", "shapegrasp")
+METHODS = ("seggrasp", "coarse", "multi", "opt", "anchored", "spread", "oracle", "shapegrasp")
 
 
 @dataclass(frozen=True)
@@ -89,14 +88,12 @@ class Observation:
 
 @dataclass
 class PartPlan:
-    """A method's per-face labels on the planning mesh, the refined scores behind them (None for ground truth), and,
-    for `shapegrasp`, its own grasps per prompt."""
+    """A method's per-face labels on the planning mesh and, for `shapegrasp`, its own grasps per prompt."""
 
     method: str
     detector: str
     labels: np.ndarray
     own_grasps: list[GraspSet] | None = None
-    scores: np.ndarray | None = None
 
 
 @dataclass
@@ -241,8 +238,8 @@ class ObjectSegmenter:
             return PartPlan(method, self.detector.label, shapegrasp_labels(votes, part_of_face), grasps)
         mode, anchor = REFINEMENT_OF_METHOD[method]
         partitions = [] if mode == "none" else self.partitions()
-        scores, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, mode, anchor)
-        return PartPlan(method, self.detector.label, labels, scores=scores)
+        _, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, mode, anchor)
+        return PartPlan(method, self.detector.label, labels)
 
 
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
@@ -303,8 +300,7 @@ def plan_trials(
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(len(context.prompts))]
     else:
-        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.labels, len(context.prompts), top_k,
-                                              plan.scores)
+        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.labels, len(context.prompts), top_k)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:

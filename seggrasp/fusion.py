@@ -36,18 +36,21 @@ over meshes and seeds; coarse = 0.389. Values: multi / full, with the fast sweep
 So the literal reading is both the paper's formula and the best of the three here. (GeoSpreading on the same data:
 fast 0.499, reference 0.504.)
 
-Prompt anchoring (`anchor_prompts`, on by default in `seggrasp.segment` and in the `seggrasp` method; not part of
-the paper). The argmax labelling lets a small part lose every face: boxes around a big part (or around the whole
-object, a detector's most common failure on part prompts) also cover the small part, so its faces collect more votes
-for the big part's prompt than for their own. On the twin with the `typical` detector (29 objects x 4 run seeds,
-per-object detector seeds, bundled fast sweeps) 49 of 244 prompted parts came out of full GeoFusion with no face at
-all, and the episode then has no grasp for that prompt. Every prompt names a part the object has, and a part is a
-geometric unit: anchoring takes the coarsest decomposition with at least one part per prompt, scales each prompt's
-area-weighted part scores by that prompt's best part, and gives every prompt its own part (the assignment with the
-largest summed scaled score, `assign_parts_to_prompts`); the faces of those parts take their prompt, every other
-face keeps its GeoFusion label. Measured (category-mean mIoU, mean of run seeds 0-3): coarse 0.422, GeoFusion
-0.535, GeoFusion + anchoring 0.667; anchoring on the finest decomposition instead gives 0.568 (one small piece per
-prompt), per-prompt scaling of every face's scores instead of anchoring 0.510.
+Prompt anchoring (`anchor_prompts`; not part of the paper; off by default, `SegmentationConfig(anchor=True)`,
+`python -m seggrasp segment --anchor`, the `anchored` method of `sim.evaluate`). The argmax labelling lets a small
+part lose every face: boxes around a big part (or around the whole object, a detector's most common failure on part
+prompts) also cover the small part, so its faces collect more votes for the big part's prompt than for their own.
+On the twin with the `typical` detector (29 objects x 4 run seeds, per-object detector seeds, bundled fast sweeps)
+49 of 244 prompted parts came out of full GeoFusion with no face at all. Every prompt names a part the object has,
+and a part is a geometric unit: anchoring takes the coarsest decomposition with at least one part per prompt, scales
+each prompt's area-weighted part scores by that prompt's best part, and gives every prompt its own part (the
+assignment with the largest summed scaled score, `assign_parts_to_prompts`); the faces of those parts take their
+prompt, every other face keeps its GeoFusion label. Measured (category-mean mIoU, mean of run seeds 0-3): coarse
+0.422, GeoFusion 0.535, GeoFusion + anchoring 0.667 (anchoring on the finest decomposition instead: 0.568;
+per-prompt scaling of every face's scores instead of anchoring: 0.510). It is not the default because it does not
+help grasping here: the assignment picks the right part for 71-73 % of prompts (the detector's evidence allows no
+better on this twin), and a wrong anchor sends all of a prompt's grasps to the wrong part; in the full benchmark
+(`python -m sim.evaluate`, seed 0) Part Sel. fell from 0.649 to 0.503 and Suc. from 0.561 to 0.380.
 """
 
 from __future__ import annotations
@@ -230,7 +233,7 @@ def refine_labels(
     partitions: Sequence[Partition],
     face_areas: np.ndarray,
     mode: str = "full",
-    anchor: bool = True,
+    anchor: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(refined scores, labels): `refine_scores`, its argmax, then (if `anchor` and there are partitions) prompt
     anchoring on the refined scores."""

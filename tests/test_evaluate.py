@@ -70,12 +70,13 @@ def test_summary_counts_part_selection_success_and_variance() -> None:
     a, b = summary["methods"]["a"], summary["methods"]["b"]
     assert a["part_selection"] == pytest.approx(0.75) and a["success"] == pytest.approx(0.5)
     assert a["executed"] == 4 and a["trials"] == 5 and a["success_all_slots"] == pytest.approx(0.4)
+    assert a["part_selection_all_slots"] == pytest.approx(0.6)
     assert a["miou"]["overall"] == pytest.approx(0.6) and a["miou"]["categories"] == {"knife": 0.7, "mug": 0.5}
     assert a["sigma2"] == pytest.approx(0.0) and b["sigma2"] > 0.01
     assert b["success"] == 1.0 and "miou" not in b
     text = markdown_report(summary, {"detector": "simulated:typical", "embodiment": "floating", "backend": "sim",
                                      "perceive": False, "seed": 0, "top_k": 2, "n_objects": 2, "wall_time_s": 1.0})
-    assert "| a | 0.600 | 0.750 | 0.500 | 0.0000 | 4 / 5 | 4 | 0.400 |" in text
+    assert "| a | 0.600 | 0.750 | 0.500 | 0.0000 | 4 / 5 | 4 | 0.600 | 0.400 |" in text
 
 
 def test_bad_arguments_exit_with_a_message(capsys) -> None:

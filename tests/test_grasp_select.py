@@ -6,14 +6,7 @@ import trimesh
 
 from seggrasp.grasp import AntipodalSampler, GraspSet
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator
-from seggrasp.grasp.select import (
-    DEPTH_SCALE,
-    assign_parts,
-    contact_faces,
-    part_confidence,
-    select_on_part,
-    select_per_prompt,
-)
+from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
 
 
 @pytest.fixture(scope="module")
@@ -53,51 +46,21 @@ def test_straddling_grasp_is_unassigned(hammer) -> None:
     assert assign_parts(straddle, mesh, unknown).tolist() == [-1]
 
 
-def test_top_k_per_part_best_score_first(hammer) -> None:
-    mesh, labels = hammer
-    grasps = AntipodalSampler().generate(mesh, seed=1)
-    parts = assign_parts(grasps, mesh, labels)
-    for k in (0, 1):
-        chosen = select_on_part(grasps, parts, k, top_k=10)
-        assert len(chosen) == 10 and np.all(parts[chosen] == k)
-        assert np.all(np.diff(grasps.scores[chosen]) <= 0)
-        assert grasps.scores[chosen[0]] == grasps.scores[parts == k].max()
-    with pytest.raises(ValueError, match="one label per mesh face"):
-        assign_parts(grasps, mesh, labels[:-1])
-    with pytest.raises(ValueError, match="top_k"):
-        select_on_part(grasps, parts, 0, top_k=0)
-
-
-def test_per_prompt_selection_ranks_by_confidence_then_score(hammer) -> None:
+def test_top_k_per_prompt_best_first(hammer) -> None:
     mesh, labels = hammer
     grasps = AntipodalSampler().generate(mesh, seed=1)
     parts = assign_parts(grasps, mesh, labels)
     chosen = select_per_prompt(grasps, mesh, labels, n_prompts=3, top_k=10)
     assert [len(c) for c in chosen] == [10, 10, 0]
     for k in (0, 1):
-        confidence = part_confidence(grasps, mesh, labels, k)
         assert np.all(parts[chosen[k]] == k)
-        assert np.all(np.diff(confidence[chosen[k]]) <= 0)
-        assert confidence[chosen[k][0]] == confidence[parts == k].max()
-        ties = confidence[chosen[k]] == confidence[chosen[k][0]]
-        assert np.all(np.diff(grasps.scores[chosen[k]][ties]) <= 0)
-
-
-def test_confidence_prefers_contacts_deep_inside_the_part_and_clear_scores(hammer) -> None:
-    mesh, labels = hammer
-    centre = np.eye(4)
-    # two handle grasps across y: one at the handle's far end, one 5 mm from the head
-    far = GraspSet(centre[None], [0.025], [1.0], [[[-0.05, -0.0125, 0.0], [-0.05, 0.0125, 0.0]]])
-    near = GraspSet(centre[None], [0.025], [1.0], [[[0.055, -0.0125, 0.0], [0.055, 0.0125, 0.0]]])
-    deep, shallow = (part_confidence(g, mesh, labels, 0)[0] for g in (far, near))
-    assert deep == pytest.approx(1.0)  # > DEPTH_SCALE from the head, no scores given
-    assert shallow < 0.5 + 0.5 * 0.01 / DEPTH_SCALE
-    scores = np.zeros((len(mesh.faces), 2))
-    scores[:, 0] = 1.0
-    scores[:, 1] = np.where(labels == 0, 1.0, 3.0)  # the handle only half sure, the head clearly part 1
-    assert part_confidence(far, mesh, labels, 0, scores)[0] == pytest.approx(0.75)
-    with pytest.raises(ValueError, match="scores covering part"):
-        part_confidence(far, mesh, labels, 2, scores)
+        assert np.all(np.diff(grasps.scores[chosen[k]]) <= 0)
+        best_other = grasps.scores[(parts == k)].max()
+        assert grasps.scores[chosen[k][0]] == best_other
+    with pytest.raises(ValueError, match="one label per mesh face"):
+        assign_parts(grasps, mesh, labels[:-1])
+    with pytest.raises(ValueError, match="top_k"):
+        select_on_part(grasps, parts, 0, top_k=0)
 
 
 class _FixedGraspModel:
