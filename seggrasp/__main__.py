@@ -46,9 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("--image-size", type=int, default=512, help="rendered image size in pixels (default 512)")
     seg.add_argument("--refine", choices=REFINE_MODES, default="full",
                      help="refinement after voting (default full GeoFusion; none = coarse votes only)")
-    seg.add_argument("--anchor", action="store_true",
-                     help="prompt anchoring after refinement: every prompt gets its own convex part (higher mIoU on "
-                          "the twin, but a wrong anchor sends grasps to the wrong part; see seggrasp/fusion.py)")
+    seg.add_argument("--no-anchor", dest="anchor", action="store_false",
+                     help="no prompt anchoring after refinement (the paper's GeoFusion labels; by default every "
+                          "prompt gets its own convex part, see seggrasp/fusion.py)")
     seg.add_argument("--decomposition", choices=("fast", "reference"), default="fast",
                      help="CoACD sweep mode for refinement (default fast)")
     seg.add_argument("--cache-dir", type=Path, help="decomposition cache folder (default: the user cache)")

@@ -7,10 +7,13 @@ each one from a fresh reset of the same scene. Every trial becomes one `TrialRec
 
 Methods (every record names its method and its detector):
 
-- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation), the full method;
+- `seggrasp`: the full method: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + prompt
+  anchoring (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part) give the labels; grasps are selected
+  only where those labels agree with the coarse votes' argmax (`seggrasp.fusion.agreed_labels`), so that a wrong
+  anchor or a wrong fused label does not send grasps to the wrong part (the paper selects on its labels alone);
 - `coarse`: coarse voting only (the paper's baseline), the same grasps;
-- `multi`, `opt`: the ablations (multi-fusion only, fine-grained optimisation only);
-- `anchored`: GeoFusion + prompt anchoring (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part);
+- `multi`, `opt`, `geofusion`: the ablations (multi-fusion only, fine-grained optimisation only, both = the paper's
+  GeoFusion); `anchored`: GeoFusion + anchoring, grasps selected on its labels alone;
 - `spread`: GeoSpreading (the paper's single-decomposition spreading), for the threshold study;
 - `oracle`: the ground-truth labels (needs a labelled object), the ceiling;
 - `shapegrasp`: seggrasp/baselines.py (convex parts, top-down grasp at the chosen part's centroid).
@@ -37,22 +40,25 @@ from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.decompose import DecompositionConfig, Partition, decompose_sweep
 from seggrasp.detect import make_detector
 from seggrasp.detect.base import Detector
-from seggrasp.fusion import coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
+from seggrasp.fusion import agreed_labels, coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.select import TOP_K
 from seggrasp.labels import PartLabels
 from seggrasp.mesh import prepare_mesh
 from seggrasp.objects import ObjectModel
 from seggrasp.segment import SegmentationConfig, segment
+from seggrasp.vote import labels_from_scores
 
 LOG = logging.getLogger(__name__)
 
-#: (refinement mode of `seggrasp.fusion.refine_scores`, prompt anchoring) of every method that labels by votes.
+#: (refinement mode of `seggrasp.fusion.refine_scores`, prompt anchoring, grasps only where the labels agree with the
+#: coarse votes) of every method that labels by votes.
 REFINEMENT_OF_METHOD = {
-    "coarse": ("none", False), "multi": ("multi", False), "opt": ("opt", False), "seggrasp": ("full", False),
-    "anchored": ("full", True), "spread": ("spread", False),
+    "coarse": ("none", False, False), "multi": ("multi", False, False), "opt": ("opt", False, False),
+    "geofusion": ("full", False, False), "anchored": ("full", True, False), "seggrasp": ("full", True, True),
+    "spread": ("spread", False, False),
 }
-METHODS = ("seggrasp", "coarse", "multi", "opt", "anchored", "spread", "oracle", "shapegrasp")
+METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "spread", "oracle", "shapegrasp")
 
 
 @dataclass(frozen=True)
@@ -88,12 +94,14 @@ class Observation:
 
 @dataclass
 class PartPlan:
-    """A method's per-face labels on the planning mesh and, for `shapegrasp`, its own grasps per prompt."""
+    """A method's per-face labels on the planning mesh, the labels its grasps are selected on (None: `labels`) and,
+    for `shapegrasp`, its own grasps per prompt."""
 
     method: str
     detector: str
     labels: np.ndarray
     own_grasps: list[GraspSet] | None = None
+    grasp_labels: np.ndarray | None = None
 
 
 @dataclass
@@ -166,8 +174,8 @@ class ObjectSegmenter:
     the decomposition sweep and the fusion then run on `mesh` itself, in its own face order, which is the mesh the
     bundled decomposition caches (assets/decompositions/) were computed for. `gt_labels` (prompt indices per face
     of `mesh`, -1 elsewhere) feed the simulated detector and the oracle; `coarse_scores` (from an earlier run with
-    the same object, detector and seed) skips rendering and detection. `seed` seeds the decomposition sweep; the
-    camera rig and the detector's draws follow `detector.seed`.
+    the same object, detector and seed) skips rendering and detection, `partitions` (finest first) the decomposition
+    sweep. `seed` seeds the decomposition sweep; the camera rig and the detector's draws follow `detector.seed`.
     """
 
     def __init__(
@@ -180,6 +188,7 @@ class ObjectSegmenter:
         decomposition_cache: str | None = None,
         coarse_scores: np.ndarray | None = None,
         decomposition_workers: int | None = None,
+        partitions: list[Partition] | None = None,
     ) -> None:
         self.mesh = mesh
         self.prepared = prepare_mesh(mesh.vertices, mesh.faces, name="object")
@@ -190,7 +199,7 @@ class ObjectSegmenter:
         self.decomposition_cache = decomposition_cache
         self.decomposition_workers = decomposition_workers
         self._coarse = None if coarse_scores is None else np.asarray(coarse_scores, dtype=np.float64)
-        self._partitions: list[Partition] | None = None
+        self._partitions = partitions
 
     def coarse_scores(self) -> np.ndarray:
         """The (F, P) coarse vote matrix S in `mesh`'s face order (computed once)."""
@@ -236,10 +245,11 @@ class ObjectSegmenter:
             votes = part_mean_scores(self.coarse_scores(), part_of_face, self.mesh.area_faces)
             grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)
             return PartPlan(method, self.detector.label, shapegrasp_labels(votes, part_of_face), grasps)
-        mode, anchor = REFINEMENT_OF_METHOD[method]
+        mode, anchor, on_agreement = REFINEMENT_OF_METHOD[method]
         partitions = [] if mode == "none" else self.partitions()
         _, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, mode, anchor)
-        return PartPlan(method, self.detector.label, labels)
+        grasp_labels = agreed_labels(labels, labels_from_scores(self.coarse_scores())) if on_agreement else None
+        return PartPlan(method, self.detector.label, labels, grasp_labels=grasp_labels)
 
 
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
@@ -300,7 +310,8 @@ def plan_trials(
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(len(context.prompts))]
     else:
-        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.labels, len(context.prompts), top_k)
+        labels = plan.labels if plan.grasp_labels is None else plan.grasp_labels
+        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, labels, len(context.prompts), top_k)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:

@@ -36,21 +36,25 @@ over meshes and seeds; coarse = 0.389. Values: multi / full, with the fast sweep
 So the literal reading is both the paper's formula and the best of the three here. (GeoSpreading on the same data:
 fast 0.499, reference 0.504.)
 
-Prompt anchoring (`anchor_prompts`; not part of the paper; off by default, `SegmentationConfig(anchor=True)`,
-`python -m seggrasp segment --anchor`, the `anchored` method of `sim.evaluate`). The argmax labelling lets a small
-part lose every face: boxes around a big part (or around the whole object, a detector's most common failure on part
-prompts) also cover the small part, so its faces collect more votes for the big part's prompt than for their own.
-On the twin with the `typical` detector (29 objects x 4 run seeds, per-object detector seeds, bundled fast sweeps)
-49 of 244 prompted parts came out of full GeoFusion with no face at all. Every prompt names a part the object has,
-and a part is a geometric unit: anchoring takes the coarsest decomposition with at least one part per prompt, scales
-each prompt's area-weighted part scores by that prompt's best part, and gives every prompt its own part (the
-assignment with the largest summed scaled score, `assign_parts_to_prompts`); the faces of those parts take their
-prompt, every other face keeps its GeoFusion label. Measured (category-mean mIoU, mean of run seeds 0-3): coarse
-0.422, GeoFusion 0.535, GeoFusion + anchoring 0.667 (anchoring on the finest decomposition instead: 0.568;
-per-prompt scaling of every face's scores instead of anchoring: 0.510). It is not the default because it does not
-help grasping here: the assignment picks the right part for 71-73 % of prompts (the detector's evidence allows no
-better on this twin), and a wrong anchor sends all of a prompt's grasps to the wrong part; in the full benchmark
-(`python -m sim.evaluate`, seed 0) Part Sel. fell from 0.649 to 0.503 and Suc. from 0.561 to 0.380.
+Prompt anchoring (`anchor_prompts`; not in the paper; on by default: `SegmentationConfig.anchor`, `python -m
+seggrasp segment --no-anchor` turns it off). The argmax labelling lets a small part lose every face: boxes around a
+big part (or around the whole object, a detector's most common failure on part prompts) also cover the small part,
+so its faces collect more votes for the big part's prompt than for their own. On the twin with the `typical`
+detector (29 objects x 4 run seeds, per-object detector seeds, bundled fast sweeps) 49 of 244 prompted parts came
+out of full GeoFusion with no face at all, and a prompt without faces gets no grasp. Every prompt names a part the
+object has, and a part is a geometric unit, so anchoring takes the coarsest decomposition with at least one part per
+prompt, turns each part's area-weighted mean scores into its distribution over the prompts (dividing by their sum,
+which removes how much the part was seen and boxed at all), scales each prompt's column by its best part, and gives
+every prompt its own part (the assignment with the largest summed scaled score, `assign_parts_to_prompts`); the
+faces of those parts take their prompt, every other face keeps its GeoFusion label.
+Measured (category-mean mIoU per run seed 0/1/2/3, mean): coarse 0.385/0.436/0.437/0.430 (0.422), GeoFusion
+0.436/0.599/0.561/0.544 (0.535), GeoFusion + anchoring 0.520/0.746/0.701/0.726 (0.673); the ShapeGrasp baseline's
+labels (`seggrasp.baselines`, the same assignment on raw means) 0.509/0.740/0.707/0.725 (0.670). Alternatives:
+raw instead of distribution-normalised part means 0.667 (right part for 71.3 % of prompts vs 72.5 %), anchoring on
+the finest decomposition 0.568 (one small piece per prompt), per-prompt scaling of every face's scores 0.510.
+The assignment is still wrong for about a quarter of the prompts (the detector's evidence allows no better here), and
+a wrong anchor would send all of a prompt's grasps to the wrong part; `agreed_labels` guards the grasp selection
+against that (see `seggrasp.episode`).
 """
 
 from __future__ import annotations
@@ -215,14 +219,16 @@ def anchor_prompts(
     """Labels in which every prompt owns at least one convex part (module docstring, "Prompt anchoring").
 
     On the coarsest partition with a part per prompt, the parts `assign_parts_to_prompts` gives the prompts (from
-    the area-weighted part means of `scores`) take those prompts; every other face keeps its label from `labels`.
+    each part's distribution of area-weighted mean `scores` over the prompts) take those prompts; every other face
+    keeps its label from `labels`.
     """
     scores = np.asarray(scores, dtype=np.float64)
     anchored = np.asarray(labels, dtype=np.int64).copy()
     _check_inputs(scores, partitions, np.asarray(face_areas, dtype=np.float64))
     partition = coarsest_with_parts(partitions, scores.shape[1])
     means = part_mean_scores(scores, partition.part_of_face, face_areas)
-    for prompt, part in enumerate(assign_parts_to_prompts(means)):
+    distributions = means / np.maximum(means.sum(axis=1, keepdims=True), 1e-18)
+    for prompt, part in enumerate(assign_parts_to_prompts(distributions)):
         if part >= 0:
             anchored[partition.part_of_face == part] = prompt
     return anchored
@@ -233,7 +239,7 @@ def refine_labels(
     partitions: Sequence[Partition],
     face_areas: np.ndarray,
     mode: str = "full",
-    anchor: bool = False,
+    anchor: bool = True,
 ) -> tuple[np.ndarray, np.ndarray]:
     """(refined scores, labels): `refine_scores`, its argmax, then (if `anchor` and there are partitions) prompt
     anchoring on the refined scores."""
@@ -242,3 +248,17 @@ def refine_labels(
     if anchor and partitions:
         labels = anchor_prompts(labels, refined, partitions, face_areas)
     return refined, labels
+
+
+def agreed_labels(*labellings: np.ndarray) -> np.ndarray:
+    """Per face the label all `labellings` agree on, -1 where any two differ (or all are -1)."""
+    if not labellings:
+        raise ValueError("need at least one labelling")
+    first = np.asarray(labellings[0], dtype=np.int64)
+    agree = np.ones(first.shape, dtype=bool)
+    for other in labellings[1:]:
+        other = np.asarray(other, dtype=np.int64)
+        if other.shape != first.shape:
+            raise ValueError(f"labellings differ in shape: {first.shape} vs {other.shape}")
+        agree &= other == first
+    return np.where(agree, first, -1)

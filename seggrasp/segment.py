@@ -40,7 +40,7 @@ class SegmentationConfig:
     n_views: int = 10
     image_size: int = DEFAULT_IMAGE_SIZE
     refine: str = "full"
-    anchor: bool = False
+    anchor: bool = True
     decomposition: DecompositionConfig | None = None
     cache_dir: str | os.PathLike | None = None
     workers: int | None = None

@@ -6,6 +6,7 @@ import pytest
 import trimesh
 
 from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
+from seggrasp.decompose import Partition
 from seggrasp.fusion import part_mean_scores
 from seggrasp.episode import (
     DetectorSpec,
@@ -117,6 +118,27 @@ def test_shapegrasp_grasps_top_down_at_the_voted_part() -> None:
     assert upper_grasp.widths[0] == pytest.approx(0.03, abs=1e-6)  # fingers meet the upper box's sides
     # the lower part's centroid is too low for the fingertips: the grasp is raised above the table
     assert grasps[1].poses[0, 2, 3] >= 0.02
+
+
+def test_seggrasp_selects_grasps_only_where_its_labels_agree_with_the_votes(cylinder) -> None:
+    # votes: the top says "top"; the side and the bottom both lean to "side", the bottom only slightly
+    gt = cylinder.labels.face_labels
+    votes = np.zeros((len(gt), 3))
+    votes[gt == 0, 0] = 1.0
+    votes[gt == 1, 1] = 1.0
+    votes[gt == 2] = [0.0, 0.6, 0.5]
+    pieces = Partition(0.05, np.asarray(gt))  # a decomposition whose parts are the cylinder's three surfaces
+    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], DetectorSpec(), coarse_scores=votes,
+                                partitions=[pieces])
+    plan = segmenter.plan("seggrasp", np.eye(4))
+    anchored = segmenter.plan("anchored", np.eye(4))
+    np.testing.assert_array_equal(plan.labels, anchored.labels)
+    assert anchored.grasp_labels is None
+    coarse = np.argmax(votes, axis=1)
+    expected = np.where(plan.labels == coarse, plan.labels, -1)
+    np.testing.assert_array_equal(plan.grasp_labels, expected)
+    assert (plan.labels[gt == 2] == 2).all()  # anchoring gives "bottom" its own part ...
+    assert (plan.grasp_labels[gt == 2] == -1).all()  # ... but the votes disagree there: no grasps on it
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:

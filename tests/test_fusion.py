@@ -10,6 +10,7 @@ import pytest
 from seggrasp.decompose import Partition
 from seggrasp.fusion import (
     REFINE_MODES,
+    agreed_labels,
     anchor_prompts,
     assign_parts_to_prompts,
     coarsest_with_parts,
@@ -148,4 +149,21 @@ def test_anchoring_keeps_labels_outside_the_anchored_parts():
     partition = Partition(0.1, np.array([0, 0, 1, 1, 2, 2]))
     labels = np.array([0, 0, 1, 1, -1, -1])
     np.testing.assert_array_equal(anchor_prompts(labels, scores, [partition], np.ones(6)), labels)
+
+
+def test_anchoring_uses_each_parts_distribution_over_the_prompts():
+    # Part 0 is seen and boxed a lot (big votes for both prompts), part 1 little but almost only as "handle".
+    # Raw means make part 0 the best part for both prompts; the distribution (0.6/0.4 vs 0.1/0.9) gives
+    # "handle" to part 1, and "body" keeps part 0.
+    scores = np.array([[6.0, 4.0], [6.0, 4.0], [0.1, 0.9], [0.1, 0.9]])
+    partition = Partition(0.1, np.array([0, 0, 1, 1]))
+    anchored = anchor_prompts(np.zeros(4, dtype=int), scores, [partition], np.ones(4))
+    np.testing.assert_array_equal(anchored, [0, 0, 1, 1])
+
+
+def test_agreed_labels_keep_only_what_all_labellings_say():
+    np.testing.assert_array_equal(agreed_labels(np.array([0, 1, 1, -1]), np.array([0, 0, 1, -1])), [0, -1, 1, -1])
+    np.testing.assert_array_equal(agreed_labels(np.array([2, 1])), [2, 1])
+    with pytest.raises(ValueError, match="shape"):
+        agreed_labels(np.array([0, 1]), np.array([0]))
 
