@@ -45,13 +45,16 @@ FLOATING_HOME = np.array([[1, 0, 0, 0.5], [0, -1, 0, 0.0], [0, 0, -1, 0.45], [0,
 
 @dataclass(frozen=True)
 class GraspSettings:
-    """The grasp-and-lift primitive's numbers (metres, m/s, seconds)."""
+    """The grasp-and-lift primitive's numbers (metres, m/s, seconds). The lift runs at the real cell's tool speed
+    (hardware/cell.example.yaml `motion.tool_speed`, 0.10 m/s); at the 0.30 m/s used before, heavy tools held off
+    their centre of mass slipped more (oracle Suc. on frying pans, hammers, screwdrivers, spatulas and toothbrushes
+    0.591 at 0.30 m/s, 0.659 at 0.10 m/s)."""
 
     pregrasp_distance: float = 0.10
     width_margin: float = 0.02
     approach_speed: float = 0.25
     lift_height: float = 0.20
-    lift_speed: float = 0.30
+    lift_speed: float = 0.10
     hold_time: float = 1.0
     lift_success: float = 0.18
     table_clearance: float = 0.003
