@@ -15,12 +15,15 @@ renumbered in order of first appearance so that equal partitions compare equal.
 Modes (`DecompositionConfig.mode`):
 - "reference": the paper's sweep, literally: thresholds 0.01..0.25 step 0.01, CoACD defaults, one run after the
   other, on the full-resolution mesh.
-- "fast" (default): the paper's grid without 0.01 (by far the slowest run; see FAST_THRESHOLDS), and (1) the mesh is simplified (manifold3d, within 0.2 % of its
-  diagonal) before CoACD and the hulls are mapped back to the full-resolution faces, (2) coarser CoACD search settings, and
-  (3) only the thresholds needed to find every distinct partition of the grid are run: the two ends and a few
-  anchors first, then bisection inside every interval whose end partitions differ; an interval whose ends give the
-  same partition is taken to be constant (CoACD's partition coarsens monotonically with the threshold in practice),
-  (4) runs of one round go to parallel worker processes. Numbers: bench/bench_seg.py --compare reference.
+- "fast" (default): the paper's grid without 0.01 (by far the slowest run; see FAST_THRESHOLDS), and (1) the mesh
+  is simplified (manifold3d, within 0.2 % of its diagonal) before CoACD and the hulls are mapped back to the
+  full-resolution faces, (2) coarser CoACD search settings and no CoACD preprocessing (remeshing) of the verified
+  closed manifold that the simplification returns, and (3) only the thresholds needed to find every distinct
+  partition of the grid are run: the two ends and a few anchors first, then bisection inside every interval whose end
+  partitions differ; an interval whose ends give the same partition is taken to be constant (CoACD's partition
+  coarsens monotonically with the threshold in practice), at most FAST_MAX_RUNS runs, (4) runs of one round go to parallel worker processes. Measured (bench/bench_seg.py --meshes
+  big,hammer_claw,knife_chef,mug_classic --compare reference --seeds 20): 25.5x faster in total (15.9 s vs 403.5 s),
+  full-GeoFusion mIoU 0.493 vs 0.491 over detector seeds 0-19; the 30k-face knife cold in 2.4 s.
 
 Caching. Every CoACD run is cached on disk under a key hashing the mesh geometry (`seggrasp.mesh.mesh_hash`), the
 threshold, every CoACD parameter, the decimation target and the mapping version; the file holds the compact
@@ -86,20 +89,36 @@ COACD_DEFAULTS = dict(
     apx_mode="ch",
     real_metric=False,
 )
-#: Fast mode: coarser CoACD search (chosen by measurement, see bench/bench_seg.py) and decimation target.
-FAST_COACD = dict(COACD_DEFAULTS, preprocess_resolution=30, resolution=500, mcts_nodes=15, mcts_iterations=60,
+#: Fast mode: coarser CoACD search (chosen by measurement, see bench/bench_seg.py) and no preprocessing. CoACD's
+#: preprocessing remeshes the input on a voxel grid; in "auto" mode it did so on manifold3d's simplified twin knife
+#: (a closed manifold), which moved the finest cut off the blade/handle boundary (majority-label mIoU of the finest
+#: partition 0.966, i.e. one part straddling both) and took 1.4 s at 0.02; with preprocessing off the same run takes
+#: 0.24 s and the partition is exact (1.000), as on the full mesh with CoACD defaults. On the 30k-face knife the
+#: finest partition goes from 0.960 to 0.999 and the sweep from 7.2 s to 2.3 s; the hammer's and mug's partitions
+#: are unchanged. "off" is only used on meshes manifold3d verified as closed manifolds (`simplify`); any other mesh
+#: is decomposed with "auto", since CoACD may abort on non-manifold input. Lighter search settings measured on the mug
+#: (detector seeds 0-19): mcts_iterations 30 or mcts_nodes 10 save a quarter of the CPU time but give full mIoU
+#: 0.466 / 0.470 instead of 0.472; resolution 300 changes nothing.
+FAST_COACD = dict(COACD_DEFAULTS, preprocess_mode="off", resolution=500, mcts_nodes=15, mcts_iterations=60,
                   mcts_max_depth=2)
-#: Fast mode's grid: the paper's without 0.01. On the twin's mug 0.01 alone costs 90 s (about 250 parts) against
-#: 14 s at 0.02 (96 parts). Measured cost (bench/bench_seg.py --compare reference, then --rescore, 4 meshes x 3
-#: detector seeds): full GeoFusion mIoU 0.471 fast vs 0.496 reference; adding 0.01 back did not close the gap
-#: (0.481 on three of the meshes) while doubling the mug's time.
+#: Fast mode's grid: the paper's without 0.01. On the twin's mug 0.01 alone costs 46 s with the fast settings
+#: (248 parts) against 9 s at 0.02 (96 parts), and it buys nothing measurable: on stored partitions of a
+#: --compare run on an earlier twin (4 meshes x detector seeds 0-19) full GeoFusion gives 0.501 with 0.01 and 0.499
+#: without (reference 0.490), and replaying the fast selection on the reference's own partitions 0.4893 with 0.01,
+#: 0.5002 without.
 FAST_THRESHOLDS: tuple[float, ...] = PAPER_THRESHOLDS[1:]
 #: manifold3d simplification tolerance (fraction of the bounding-box diagonal): well below the finest concavity.
+#: Coarser tolerances lower the mug's finest-partition majority-label mIoU (0.999 -> 0.991 at 0.004 and 0.008) and its
+#: full mIoU (0.472 -> 0.469 / 0.463 over detector seeds 0-19).
 FAST_SIMPLIFY_TOLERANCE = 0.002
 #: Thresholds the fast mode runs before bisecting (indices into the grid are derived from these values).
 FAST_ANCHORS = (0.02, 0.04, 0.08, 0.25)
 #: At most this many CoACD runs per sweep in fast mode (bisection stops there; the finest threshold is always run).
-FAST_MAX_RUNS = 6
+#: Full GeoFusion hardly depends on the coarser partitions: replaying the selection on the reference sweep's
+#: partitions (4 benchmark meshes x detector seeds 0-19) gave mIoU 0.4907 with 6 runs, 0.4920 with 5, 0.4919 with 4
+#: or with only the two grid ends, against 0.4908 for all 25 thresholds. 5 runs instead of 6 save 17 % of the mug's
+#: CoACD time (19.7 vs 23.7 CPU s) at the same mug mIoU.
+FAST_MAX_RUNS = 5
 
 
 @dataclass(frozen=True)
@@ -282,26 +301,36 @@ def run_coacd_hulls(vertices: np.ndarray, faces: np.ndarray, threshold: float, p
     return [np.asarray(hull_vertices, dtype=np.float64) for hull_vertices, _ in result]
 
 
-def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal.
+def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.ndarray, bool]:
+    """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal, and
+    whether the result is a closed manifold verified by manifold3d.
 
     manifold3d's edge collapses keep a closed manifold closed, so CoACD (which aborts on some non-manifold input)
-    gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged (CoACD then
-    remeshes it itself in its preprocessing step).
+    gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and
+    unverified (False: CoACD then needs its own preprocessing).
     """
     # Fresh writable C-ordered copies: manifold3d refuses read-only views.
     vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
     faces = np.array(mesh.faces, dtype=np.int64, order="C")
     if tolerance <= 0:
-        return vertices, faces
+        return vertices, faces, False
     import manifold3d
 
     solid = manifold3d.Manifold(manifold3d.Mesh64(vertices, faces.astype(np.uint64)))
     if solid.status() != manifold3d.Error.NoError or solid.is_empty():
         logger.info("mesh is not a closed manifold (%s): decomposing it without simplification", solid.status())
-        return vertices, faces
+        return vertices, faces, False
     simplified = solid.simplify(tolerance * float(np.linalg.norm(mesh.extents))).to_mesh64()
-    return np.asarray(simplified.vert_properties[:, :3], dtype=np.float64), np.asarray(simplified.tri_verts, np.int64)
+    return (np.asarray(simplified.vert_properties[:, :3], dtype=np.float64),
+            np.asarray(simplified.tri_verts, np.int64), True)
+
+
+def params_for(params: dict, closed_manifold: bool) -> dict:
+    """CoACD arguments for one input mesh: preprocessing "off" becomes "auto" unless the mesh is a verified closed
+    manifold (CoACD may abort on other input without its preprocessing)."""
+    if params["preprocess_mode"] == "off" and not closed_manifold:
+        return dict(params, preprocess_mode="auto")
+    return params
 
 
 def _decompose_once(job: tuple) -> tuple[float, np.ndarray, float]:
@@ -420,7 +449,7 @@ def decompose_sweep(
     centroids = np.asarray(mesh.triangles_center, dtype=np.float64)
     scale = float(np.linalg.norm(mesh.extents))
     params = config.coacd_params()
-    coarse: tuple[np.ndarray, np.ndarray] | None = None
+    coarse: tuple[np.ndarray, np.ndarray, bool] | None = None
 
     def evaluate(thresholds: list[float]) -> dict[float, np.ndarray]:
         nonlocal coarse
@@ -436,13 +465,15 @@ def decompose_sweep(
         if missing:
             if coarse is None:
                 coarse = simplify(mesh, config.effective_simplify_tolerance)
-            jobs = [(coarse[0], coarse[1], centroids, scale, t, params, config.log_level) for t in missing]
+            run_params = params_for(params, coarse[2])
+            jobs = [(coarse[0], coarse[1], centroids, scale, t, run_params, config.log_level) for t in missing]
             outcomes = _run_jobs(jobs, workers)
             crashed = [t for t, outcome in zip(missing, outcomes) if outcome is None]
             if crashed and len(coarse[1]) != n_faces:
                 logger.warning("CoACD crashed on the simplified mesh at thresholds %s; retrying on the full mesh", crashed)
                 full = (np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces, dtype=np.int64))
-                retry = [(full[0], full[1], centroids, scale, t, params, config.log_level) for t in crashed]
+                retry = [(full[0], full[1], centroids, scale, t, params_for(params, False), config.log_level)
+                         for t in crashed]
                 outcomes = [o for o in outcomes if o is not None] + _run_jobs(retry, workers)
             if any(outcome is None for outcome in outcomes):
                 failed = sorted(set(missing) - {o[0] for o in outcomes if o is not None})

@@ -106,6 +106,60 @@ def test_threshold_selection_returns_every_distinct_partition_of_the_grid_with_f
     assert len(runs) == len(capped) == 5 and min(capped) == 0.01 and max(capped) == 0.25
 
 
+def four_boxes() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """Four separate 2 cm cubes in a row along x (5 cm apart); returns the mesh and the cube of every face."""
+    cubes = [box([0.02, 0.02, 0.02], [0.05 * k, 0.0, 0.0]).subdivide() for k in range(4)]
+    return trimesh.util.concatenate(cubes), np.repeat(np.arange(4), [len(c.faces) for c in cubes])
+
+
+#: Known hulls of `four_boxes` per threshold: (lowest threshold, groups of cubes merged into one hull).
+KNOWN_GROUPS = ((0.0, ((0,), (1,), (2,), (3,))), (0.05, ((0, 1), (2,), (3,))), (0.10, ((0, 1), (2, 3))),
+                (0.20, ((0, 1, 2, 3),)))
+
+
+def groups_at(threshold: float) -> tuple[tuple[int, ...], ...]:
+    return [groups for low, groups in KNOWN_GROUPS if threshold >= low - 1e-9][-1]
+
+
+def known_hulls(vertices, faces, threshold, params):
+    """Stand-in for CoACD on `four_boxes`: one hull (the bounding box of its cubes) per group of `groups_at`."""
+    hulls = []
+    for group in groups_at(threshold):
+        low = np.array([0.05 * min(group) - 0.01, -0.01, -0.01])
+        high = np.array([0.05 * max(group) + 0.01, 0.01, 0.01])
+        hulls.append(trimesh.bounds.corners(np.stack([low, high])))
+    return hulls
+
+
+def test_sweep_selection_returns_the_distinct_partitions_of_a_mesh_with_known_hulls(monkeypatch, tmp_path):
+    mesh, cube_of_face = four_boxes()
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=known_hulls))
+
+    def expected(threshold):
+        group_of_cube = {cube: g for g, group in enumerate(groups_at(threshold)) for cube in group}
+        return canonical_parts(np.array([group_of_cube[c] for c in cube_of_face]))
+
+    grid = DecompositionConfig().thresholds
+    truth = dedupe_partitions([Partition(t, expected(t)) for t in grid])
+    assert [p.threshold for p in truth] == [0.02, 0.05, 0.1, 0.2] and [p.n_parts for p in truth] == [4, 3, 2, 1]
+
+    # Unlimited bisection: exactly the full grid's distinct partitions, at their first thresholds, in fewer runs.
+    found = decompose_sweep(mesh, DecompositionConfig(max_runs=len(grid)), cache_dir=tmp_path / "a", workers=2)
+    assert [p.threshold for p in found] == [p.threshold for p in truth]
+    assert all(a.same_as(b) for a, b in zip(found, truth))
+    runs = [c[0] for c in logged_calls(log)]
+    assert len(runs) == len(set(runs)) < len(grid)
+
+    # The default fast sweep (at most FAST_MAX_RUNS runs) still finds every distinct partition, each the true
+    # partition at the threshold it reports.
+    log.unlink()
+    fast = decompose_sweep(mesh, DecompositionConfig(), cache_dir=tmp_path / "b", workers=2)
+    assert len(logged_calls(log)) <= decompose.FAST_MAX_RUNS
+    assert [p.n_parts for p in fast] == [4, 3, 2, 1]
+    assert all(p.same_as(Partition(p.threshold, expected(p.threshold))) for p in fast)
+
+
 def test_log_level_is_validated_before_coacd_sees_it():
     with pytest.raises(ValueError, match="log level"):
         DecompositionConfig(log_level="trace")
@@ -194,7 +248,8 @@ def test_sweep_is_deterministic_and_splits_the_l_shape(tmp_path):
 def test_decimated_decomposition_maps_every_full_resolution_face(tmp_path):
     mesh = l_shape().subdivide().subdivide()  # ~2.4k faces
     config = DecompositionConfig(thresholds=(0.05,), coacd=QUICK, simplify_tolerance=0.002)
-    coarse_vertices, coarse_faces = decompose.simplify(mesh, 0.002)
+    coarse_vertices, coarse_faces, closed = decompose.simplify(mesh, 0.002)
+    assert closed
     assert len(coarse_faces) < len(mesh.faces) / 10
     assert trimesh.Trimesh(coarse_vertices, coarse_faces, process=False).is_watertight
     (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
@@ -229,6 +284,20 @@ def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypa
     assert len({c[3] for c in calls}) == len(calls)  # every run in its own process
 
 
+def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_manifold(monkeypatch, tmp_path):
+    closed = l_shape().subdivide()
+    opened = trimesh.Trimesh(closed.vertices, closed.faces[1:], process=False)  # one face missing: not closed
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
+    config = DecompositionConfig(thresholds=(0.05,))
+    assert config.coacd_params()["preprocess_mode"] == "off"
+    decompose_sweep(closed, config, cache_dir=tmp_path / "closed", workers=1)
+    decompose_sweep(opened, config, cache_dir=tmp_path / "open", workers=1)
+    (on_closed, on_open) = logged_calls(log)
+    assert on_closed[1]["preprocess_mode"] == "off" and on_closed[2] < len(closed.faces)
+    assert on_open[1] == dict(config.coacd_params(), preprocess_mode="auto") and on_open[2] == len(opened.faces)
+
+
 def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path):
     objects = pytest.importorskip("seggrasp.objects")
     try:
@@ -243,3 +312,5 @@ def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path):
         pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m seggrasp.decompose --precompute-assets`")
     assert stats.run_seconds == {} and len(stats.cached) >= 2
     assert partitions[0].part_of_face.shape == (len(model.mesh.faces),)
+    with pytest.raises(RuntimeError, match="crashed"):  # bundled=False: a cold run (benchmarks) must run CoACD
+        decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path / "cold", bundled=False)
