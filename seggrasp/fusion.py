@@ -47,11 +47,12 @@ prompt, turns each part's area-weighted mean scores into its distribution over t
 which removes how much the part was seen and boxed at all), scales each prompt's column by its best part, and gives
 every prompt its own part (the assignment with the largest summed scaled score, `assign_parts_to_prompts`); the
 faces of those parts take their prompt, every other face keeps its GeoFusion label.
-Measured (category-mean mIoU per run seed 0/1/2/3, mean): coarse 0.385/0.436/0.437/0.430 (0.422), GeoFusion
-0.436/0.599/0.561/0.544 (0.535), GeoFusion + anchoring 0.520/0.746/0.701/0.726 (0.673); the ShapeGrasp baseline's
-labels (`seggrasp.baselines`, the same assignment on raw means) 0.509/0.740/0.707/0.725 (0.670). Alternatives:
-raw instead of distribution-normalised part means 0.667 (right part for 71.3 % of prompts vs 72.5 %), anchoring on
-the finest decomposition 0.568 (one small piece per prompt), per-prompt scaling of every face's scores 0.510.
+Measured (category-mean mIoU per run seed 0/1/2/3, mean; bundled fast sweeps of 2026-11-22): coarse
+0.385/0.436/0.437/0.430 (0.422), GeoFusion 0.436/0.599/0.551/0.545 (0.533), GeoFusion + anchoring
+0.549/0.775/0.693/0.749 (0.691); the ShapeGrasp baseline's labels (`seggrasp.baselines`, the same assignment on raw
+means) 0.538/0.769/0.699/0.748 (0.689). Alternatives: raw instead of distribution-normalised part means 0.685 (right
+part for 72.1 % of prompts vs 73.4 %), anchoring on the finest decomposition 0.570 (one small piece per prompt),
+per-prompt scaling of every face's scores 0.513.
 The assignment is still wrong for about a quarter of the prompts (the detector's evidence allows no better here), and
 a wrong anchor would send all of a prompt's grasps to the wrong part; `agreed_labels` guards the grasp selection
 against that (see `seggrasp.episode`).
