@@ -27,3 +27,14 @@ def ycb_dir() -> Path:
     if not YCB_DIR.is_dir():
         pytest.skip(f"YCB scans not found at {YCB_DIR}")
     return YCB_DIR
+
+
+@pytest.fixture(scope="session")
+def twin_knife():
+    """The twin's chef knife (`seggrasp.objects.ObjectModel`); tests that need it skip when the twin is absent."""
+    from seggrasp.objects import load_asset
+
+    try:
+        return load_asset("knife_chef")
+    except (FileNotFoundError, ValueError) as exc:
+        pytest.skip(f"twin not available: {exc}")

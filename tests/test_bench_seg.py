@@ -13,12 +13,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 bench_seg = pytest.importorskip("bench_seg")
 
 
-def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkeypatch, tmp_path):
-    objects = pytest.importorskip("seggrasp.objects")
-    try:
-        model = objects.load_asset("knife_chef")
-    except (FileNotFoundError, ValueError) as exc:
-        pytest.skip(f"twin not available: {exc}")
+def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkeypatch, tmp_path, twin_knife):
+    model = twin_knife
     bundled = decompose.ASSET_CACHE_DIR
     keys = {DecompositionConfig().run_key(decompose.mesh_hash(model.mesh), t) for t in (0.02, 0.25)}
     if not all((bundled / f"{key}.npz").is_file() for key in keys):

@@ -298,12 +298,8 @@ def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_man
     assert on_open[1] == dict(config.coacd_params(), preprocess_mode="auto") and on_open[2] == len(opened.faces)
 
 
-def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path):
-    objects = pytest.importorskip("seggrasp.objects")
-    try:
-        model = objects.load_asset("knife_chef")
-    except (FileNotFoundError, ValueError) as exc:
-        pytest.skip(f"twin not available: {exc}")
+def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path, twin_knife):
+    model = twin_knife
     monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
     stats = SweepStats()
     try:
