@@ -93,8 +93,8 @@ def run_segment(args: argparse.Namespace) -> dict:
 
         decomposition = DecompositionConfig(mode=args.decomposition, seed=args.seed)
     config = SegmentationConfig(n_views=args.views, image_size=args.image_size, refine=args.refine,
-                                anchor=args.anchor, decomposition=decomposition, cache_dir=args.cache_dir, workers=args.workers,
-                                seed=args.seed)
+                                anchor=args.anchor, decomposition=decomposition, cache_dir=args.cache_dir,
+                                workers=args.workers, seed=args.seed)
     result = segment(prepared, prompts, detector, config)
 
     out: Path = args.out

@@ -6,13 +6,14 @@ the decomposition sweep that has at least one part per prompt (`seggrasp.fusion.
 for each prompt is chosen from the area-weighted mean of the detector's votes (the same coarse vote matrix S the
 other methods start from), one distinct part per prompt (`seggrasp.fusion.assign_parts_to_prompts`, the step
 SegGrasp's prompt anchoring shares), so the comparison isolates the geometry: whole convex parts and a fixed
-top-down grasp instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU)
-give the chosen parts their prompts and every other part its best-voted prompt.
+top-down grasp instead of GeoFusion and the antipodal sampler. Its face labels (for mIoU) give the chosen parts
+their prompts and every other part its best-voted prompt.
 """
 
 from __future__ import annotations
 
 import logging
+
 import numpy as np
 import trimesh
 

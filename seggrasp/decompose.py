@@ -21,9 +21,10 @@ Modes (`DecompositionConfig.mode`):
   closed manifold that the simplification returns, and (3) only the thresholds needed to find every distinct
   partition of the grid are run: the two ends and a few anchors first, then bisection inside every interval whose end
   partitions differ; an interval whose ends give the same partition is taken to be constant (CoACD's partition
-  coarsens monotonically with the threshold in practice), at most FAST_MAX_RUNS runs, (4) runs of one round go to parallel worker processes. Measured (bench/bench_seg.py --meshes
-  big,hammer_claw,knife_chef,mug_classic --compare reference --seeds 20): 25.5x faster in total (15.9 s vs 403.5 s),
-  full-GeoFusion mIoU 0.493 vs 0.491 over detector seeds 0-19; the 30k-face knife cold in 2.4 s.
+  coarsens monotonically with the threshold in practice), at most FAST_MAX_RUNS runs, (4) runs of one round go to
+  parallel worker processes. Measured (bench/bench_seg.py --meshes big,hammer_claw,knife_chef,mug_classic
+  --compare reference --seeds 20): 25.5x faster in total (15.9 s vs 403.5 s), full-GeoFusion mIoU 0.493 vs 0.491
+  over detector seeds 0-19; the 30k-face knife cold in 2.4 s.
 
 Caching. Every CoACD run is cached on disk under a key hashing the mesh geometry (`seggrasp.mesh.mesh_hash`), the
 threshold, every CoACD parameter, the decimation target and the mapping version; the file holds the compact

@@ -63,7 +63,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-
 from scipy.optimize import linear_sum_assignment
 
 from seggrasp.decompose import Partition

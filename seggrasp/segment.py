@@ -32,8 +32,8 @@ class SegmentationConfig:
     """Settings of one segmentation run.
 
     `refine` is a mode of `seggrasp.fusion.refine_scores` ("none" keeps the coarse votes); `anchor` gives every
-    prompt a convex part after refinement (`seggrasp.fusion.anchor_prompts`; ignored without refinement); `decomposition`,
-    `cache_dir` and `workers` go to `seggrasp.decompose.decompose_sweep` (None: its defaults). `seed` turns the
+    prompt a convex part after refinement (`seggrasp.fusion.anchor_prompts`; ignored without refinement);
+    `decomposition`, `cache_dir` and `workers` go to `seggrasp.decompose.decompose_sweep` (None: its defaults). `seed` turns the
     camera rig.
     """
 
@@ -123,7 +123,8 @@ def segment(
     coarse = vote(views, detections, len(working.faces), len(prompts))
     timings["vote"] = time.perf_counter() - start
 
-    scores, labels, partitions = coarse, labels_from_scores(coarse), []
+    coarse_labels = labels_from_scores(coarse)
+    scores, labels, partitions = coarse, coarse_labels, []
     if config.refine != "none":
         start = time.perf_counter()
         partitions = decompose_sweep(working, config.decomposition, Path(config.cache_dir) if config.cache_dir
@@ -142,7 +143,7 @@ def segment(
         prompts=prompts,
         labels=mesh.to_source(labels),
         scores=mesh.to_source(scores),
-        coarse_labels=mesh.to_source(labels_from_scores(coarse)),
+        coarse_labels=mesh.to_source(coarse_labels),
         coarse_scores=mesh.to_source(coarse),
         views=views,
         detections=detections,

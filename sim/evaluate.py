@@ -38,6 +38,7 @@ import numpy as np
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import (
     METHODS,
+    REFINEMENT_OF_METHOD,
     DetectorSpec,
     EpisodeContext,
     ObjectSegmenter,
@@ -443,8 +444,6 @@ def markdown_report(summary: dict, header: dict) -> str:
                      f"{_fmt(m['part_selection_all_slots'])} | {_fmt(m['success_all_slots'])} |")
     ablation = [a for a in ABLATION_METHODS if a in methods]
     if len(ablation) > 1:
-        flags = {"coarse": ("", "", "", ""), "multi": ("✓", "", "", ""), "opt": ("", "✓", "", ""),
-                 "geofusion": ("✓", "✓", "", ""), "anchored": ("✓", "✓", "✓", ""), "seggrasp": ("✓", "✓", "✓", "✓")}
         lines += ["", "## Table III — ablation", "",
                   "| method | multi-fusion | fine-grained opt. | prompt anchoring | grasps where labels agree with votes "
                   "| mIoU | Part Sel. | Suc. |",
@@ -452,7 +451,7 @@ def markdown_report(summary: dict, header: dict) -> str:
         for name in ablation:
             m = methods[name]
             miou = m["miou"]["overall"] if "miou" in m else None
-            lines.append(f"| {name} | {' | '.join(flags[name])} | {_fmt(miou)} | "
+            lines.append(f"| {name} | {' | '.join(_ablation_flags(name))} | {_fmt(miou)} | "
                          f"{_fmt(m.get('part_selection'))} | {_fmt(m.get('success'))} |")
     curve = summary.get("curve") or {}
     if curve.get("thresholds"):
@@ -471,6 +470,13 @@ def markdown_report(summary: dict, header: dict) -> str:
                      if c in m["categories"] else "—" for c in grasp_categories]
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
+
+
+def _ablation_flags(method: str) -> list[str]:
+    """Table III ticks (multi-fusion, fine-grained opt., prompt anchoring, grasps on agreed labels) of a method."""
+    mode, anchor, on_agreement = REFINEMENT_OF_METHOD[method]
+    steps = (mode in ("multi", "full"), mode in ("opt", "full"), anchor, on_agreement)
+    return ["✓" if step else "" for step in steps]
 
 
 def write_plots(summary: dict, plot_dir: Path) -> list[Path]:
