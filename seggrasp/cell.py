@@ -25,12 +25,19 @@ class Frame:
     T_world_cam: np.ndarray  # (4, 4) camera (OpenCV) -> world
 
 
+# Why a trial failed. The cell names the physical failures; the harness adds `no_grasp` (the method planned no
+# grasp for the slot) and `wrong_part` (held, but on another part than the prompted one). "" means success.
+FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp")
+
+
 @dataclass
 class GraspOutcome:
     """What happened when a grasp was executed.
 
-    `touched_faces` are faces of the object mesh (in its file order) that the finger pads touched; a backend that
-    cannot observe contacts (the real robot) leaves it empty and sets `contacts_observed=False`.
+    `touched_faces` are faces of the object mesh (in its file order) that the finger pads touched and
+    `touched_weights` (same length, optional) how much of the contact each carried (normal force or area); a backend
+    that cannot observe contacts (the real robot) leaves both empty and sets `contacts_observed=False`.
+    `failure` is one of `FAILURES`, or "" when the cell saw nothing go wrong.
     """
 
     reachable: bool
@@ -40,6 +47,14 @@ class GraspOutcome:
     contact_force: float = 0.0  # newtons, total normal force between pads and object while holding
     contacts_observed: bool = True
     message: str = ""
+    failure: str = ""
+    touched_weights: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float64))
+
+    def __post_init__(self) -> None:
+        if self.failure and self.failure not in FAILURES:
+            raise ValueError(f"unknown failure {self.failure!r}; expected one of {FAILURES}")
+        if len(self.touched_weights) not in (0, len(self.touched_faces)):
+            raise ValueError("touched_weights must be empty or have one weight per touched face")
 
     def to_json(self) -> dict:
         return {
@@ -50,6 +65,8 @@ class GraspOutcome:
             "contact_force": float(self.contact_force),
             "contacts_observed": bool(self.contacts_observed),
             "message": self.message,
+            "failure": self.failure,
+            "touched_weights": [float(w) for w in self.touched_weights],
         }
 
 

@@ -273,13 +273,21 @@ def ground_truth_on_part(
 
 
 def touched_part(outcome: GraspOutcome, gt_labels: np.ndarray | None, prompt_index: int) -> bool | None:
-    """Whether most mesh faces the pads touched have the prompt's true label (None if unknown or unobserved)."""
+    """Whether the prompt's true part carries most of what the pads touched (None if unknown or unobserved).
+
+    Each touched face counts with its `touched_weights` entry (contact force or area) when the cell reports them,
+    else with weight one.
+    """
     if gt_labels is None or not outcome.contacts_observed:
         return None
     touched = np.asarray(outcome.touched_faces, dtype=np.int64)
     if len(touched) == 0:
         return False
-    return bool((np.asarray(gt_labels)[touched] == prompt_index).mean() >= 0.5)
+    weights = np.asarray(outcome.touched_weights, dtype=np.float64)
+    if len(weights) != len(touched) or weights.sum() <= 0:
+        weights = np.ones(len(touched))
+    on_part = np.asarray(gt_labels)[touched] == prompt_index
+    return bool(weights[on_part].sum() >= 0.5 * weights.sum())
 
 
 @dataclass

@@ -292,6 +292,7 @@ def _outcome_from(record: dict) -> GraspOutcome:
     """The outcome stored in a trial record."""
     stored = dict(record["outcome"])
     stored["touched_faces"] = np.asarray(stored["touched_faces"], dtype=np.int64)
+    stored["touched_weights"] = np.asarray(stored.get("touched_weights", []), dtype=np.float64)
     return GraspOutcome(**stored)
 
 
