@@ -25,10 +25,11 @@ from scipy.spatial.transform import Rotation
 from hardware.calibration import (EXTRINSIC_KEYS, EYE_IN_HAND_METHODS, EYE_TO_HAND_METHODS, Checkerboard,
                                   calibrate_eye_in_hand, calibrate_eye_to_hand, collect_samples,
                                   eye_in_hand_residual, eye_to_hand_residual, load_extrinsics, save_extrinsics)
-from hardware.cell import RealCell
+from hardware.cell import RealCell, make_guard
 from hardware.config import ConfigError, load_config
 from hardware.errors import HardwareError
 from hardware.fields import read_yaml, transform_from_config
+from hardware.kinematics import forward_kinematics
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -65,6 +66,8 @@ def _check(args: argparse.Namespace) -> int:
     if args.dry_run and not args.connect:
         raise ValueError("--dry-run only applies with --connect (without it nothing connects anyway)")
     config = load_config(args.config)
+    home = forward_kinematics(config.robot.model, config.robot.home_joints) @ config.robot.T_flange_gripper
+    make_guard(config).check_pose(home, "the home pose (robot.home_joints, gripper fully open)")
     limits = config.limits
     print(f"{args.config}: valid. UR {config.robot.model} at {config.robot.ip}, gripper at "
           f"{config.gripper.host}:{config.gripper.port}, cameras {[c.serial for c in config.cameras]}")

@@ -93,7 +93,7 @@ class CameraConfig:
 class Limits:
     """Safety limits: anything outside them is refused before a command is sent."""
 
-    workspace_min: np.ndarray  # (3,) world-frame box the gripper origin must stay in
+    workspace_min: np.ndarray  # (3,) world-frame box the gripper origin, fingertips and flange must stay in
     workspace_max: np.ndarray  # (3,)
     table_height: float  # m, z of the table top in the world frame
     min_table_clearance: float  # m, lowest any fingertip or the flange may come above the table
