@@ -206,7 +206,11 @@ class FakeRobotiqServer:
     def huge_reply(size: int) -> Callable[[socket.socket, bytes], None]:
         """Send `size` bytes of junk without a newline instead of the reply."""
         def send(client: socket.socket, data: bytes) -> None:
-            client.sendall(b"x" * size)
+            client.settimeout(10.0)  # a slow reader gets it all, as from a real socket
+            try:
+                client.sendall(b"x" * size)
+            finally:
+                client.settimeout(0.05)
         return send
 
     def trickle_reply(self, period: float) -> Callable[[socket.socket, bytes], None]:
