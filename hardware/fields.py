@@ -100,13 +100,19 @@ class FieldReader:
         if unknown:
             raise self.error(f"{prefix}{unknown[0]}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
 
+    def _given(self, data: dict, key: str, name: str, default: Any) -> bool:
+        """Whether `key` is in `data`; raises when it is missing and has no `default`."""
+        if key in data:
+            return True
+        if default is None:
+            raise self.error(name, "missing")
+        return False
+
     def number(self, data: dict, key: str, prefix: str, default: float | None = None, *, positive: bool = False,
                non_negative: bool = False, low: float | None = None, high: float | None = None) -> float:
         """A finite number (optionally > 0, >= 0 or within [low, high]); `default` when absent (None: required)."""
         name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
+        if not self._given(data, key, name, default):
             return float(default)
         value = data[key]
         if isinstance(value, str) and re.fullmatch(r"\s*[-+]?\d+(\.\d*)?[eE][-+]?\d+\s*", value):
@@ -126,9 +132,7 @@ class FieldReader:
                 high: int | None = None) -> int:
         """An integer within [low, high]; `default` when absent (None: required)."""
         name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
+        if not self._given(data, key, name, default):
             return int(default)
         value = data[key]
         if isinstance(value, bool) or not isinstance(value, int):
@@ -140,9 +144,7 @@ class FieldReader:
     def string(self, data: dict, key: str, prefix: str, default: str | None = None) -> str:
         """A non-empty string (an integer is taken as its digits: unquoted serials); `default` when absent."""
         name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
+        if not self._given(data, key, name, default):
             return default
         value = data[key]
         if isinstance(value, int) and not isinstance(value, bool):
