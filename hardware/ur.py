@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from hardware.config import RobotConfig
 from hardware.errors import ConnectionLostError, MotionError, RobotStoppedError, SafetyError
-from hardware.kinematics import forward_kinematics
+from hardware.kinematics import ARM_MODELS, forward_kinematics
 from hardware.safety import SafetyGuard
 
 log = logging.getLogger(__name__)
@@ -247,9 +247,13 @@ class URArm:
                               "limits or unreachable")
 
     def has_ik_solution(self, T_world_gripper: np.ndarray) -> bool:
-        """Whether the controller finds joint angles for this gripper pose (True in dry run: no controller)."""
+        """Whether the controller finds joint angles for this gripper pose. In dry run, with no controller to ask,
+        the necessary condition: the flange is within the arm's reach of the shoulder and outside its base column."""
         if self.dry_run:
-            return True
+            arm = ARM_MODELS[self.config.model]
+            flange = (np.asarray(T_world_gripper, dtype=np.float64) @ np.linalg.inv(self.config.T_flange_gripper))[:3, 3]
+            return bool(np.linalg.norm(flange - arm.shoulder) <= arm.reach
+                        and np.linalg.norm(flange[:2]) >= arm.base_radius)
         return bool(self._call(self._control, "getInverseKinematicsHasSolution",
                                ur_pose_from_matrix(T_world_gripper)))
 

@@ -278,3 +278,13 @@ def test_fingertips_are_checked_against_the_box_at_the_commanded_opening(config,
     assert gripper.commands == commands
     gripper.move_to_width(0.015)  # a little wider still fits
     assert [m.kind for m in arm.planned_motions] == ["moveL"]
+
+
+def test_dry_run_reports_poses_beyond_the_arms_reach_as_unreachable(config, fake):
+    arm = URArm(config.robot, make_guard(config), dry_run=True)
+    arm.connect()
+    assert arm.has_ik_solution(pose([0.5, 0.1, 0.2]))
+    # inside the box, but pointing down at its far top corner the flange is 0.92 m from the shoulder (reach 0.85 m)
+    assert not arm.has_ik_solution(pose([0.74, 0.28, 0.4]))
+    # a gripper hanging over the robot's own base
+    assert not arm.has_ik_solution(pose([0.02, 0.0, 0.3]))
