@@ -60,9 +60,11 @@ class _Reply:
 
     @property
     def describe(self) -> str:
+        """How the expected reply is named in errors."""
         return f"{self.head!r}" + (" and a number" if self.tail else "")
 
     def complete(self, text: str) -> bool:
+        """Whether `text` is the whole expected reply."""
         return text.startswith(self.head) and re.fullmatch(self.tail, text[len(self.head):]) is not None
 
     def partial(self, text: str) -> bool:
@@ -147,6 +149,7 @@ class RobotiqGripper:
         if self.dry_run:
             log.info("[dry run] not connecting to the gripper at %s:%d", self.config.host, self.config.port)
             return
+        self.disconnect()  # a fresh connection: nothing from an earlier one can be read as a reply
         try:
             self._socket = socket.create_connection((self.config.host, self.config.port), timeout=self.config.timeout)
         except OSError as exc:

@@ -24,9 +24,11 @@ class SafetyGuard:
 
     A pose is checked at four points: the gripper origin (pad centres), both fingertips (`tip_beyond_origin` past
     the pads along +z, half the finger opening out along x), and the flange (`flange_in_gripper`). Each must lie
-    inside the workspace box and `min_table_clearance` above the table. The opening is `finger_opening`, which the
-    gripper keeps current (the widest the fingers may be while they move; the full stroke, `2 * finger_reach`,
-    until it is known); `tool_pose` is the last pose the arm was sent to, so opening the fingers can be checked.
+    inside the workspace box and `min_table_clearance` above the table. The fingertips are placed at the given
+    finger opening, or at the full stroke (`2 * finger_reach`, the worst case: a plan for a whole sequence) when
+    none is given. The arm checks each motion at `finger_opening`, which the gripper keeps current (the commanded
+    opening; the wider of the old and new one while the fingers move; the full stroke until known), and
+    `tool_pose` is the last pose the arm was sent to, so opening the fingers there can be checked.
     """
 
     def __init__(self, limits: Limits, *, finger_reach: float, tip_beyond_origin: float,
@@ -39,17 +41,18 @@ class SafetyGuard:
         self.tool_pose: np.ndarray | None = None
 
     def tool_points(self, T_world_gripper: np.ndarray, opening: float | None = None) -> dict[str, np.ndarray]:
-        """World positions of the gripper origin, both fingertips (at `opening`, default `finger_opening`) and
-        the flange, for a gripper pose."""
+        """World positions of the gripper origin, both fingertips (at `opening`, default the full stroke) and the
+        flange, for a gripper pose."""
         T = np.asarray(T_world_gripper, dtype=np.float64)
         R, origin = T[:3, :3], T[:3, 3]
-        half = 0.5 * float(np.clip(self.finger_opening if opening is None else opening, 0.0, self.stroke))
+        half = 0.5 * float(np.clip(self.stroke if opening is None else opening, 0.0, self.stroke))
         tip = origin + self.tip_beyond_origin * R[:, 2]
         return {"gripper origin": origin, "fingertip +x": tip + half * R[:, 0], "fingertip -x": tip - half * R[:, 0],
                 "flange": origin + R @ self.flange_in_gripper}
 
     def check_pose(self, T_world_gripper: np.ndarray, what: str = "target", opening: float | None = None) -> None:
-        """Refuse a gripper pose whose origin, fingertips or flange leave the workspace or come near the table."""
+        """Refuse a gripper pose whose origin, fingertips (at `opening`, default the full stroke) or flange leave
+        the workspace or come near the table."""
         T = np.asarray(T_world_gripper, dtype=np.float64)
         if T.shape != (4, 4) or not np.all(np.isfinite(T)):
             raise SafetyError(f"{what}: pose must be a finite 4x4 matrix, got shape {T.shape}")
@@ -80,17 +83,17 @@ class SafetyGuard:
             self.check_pose(self.tool_pose, what, opening=width)
 
     def check_linear_path(self, T_start: np.ndarray, T_goal: np.ndarray, what: str = "linear move",
-                          samples: int = 11) -> None:
+                          samples: int = 11, opening: float | None = None) -> None:
         """Check poses along a straight tool path (position lerp, orientation slerp) like the UR's moveL."""
         T_start, T_goal = np.asarray(T_start, float), np.asarray(T_goal, float)
-        self.check_pose(T_goal, f"{what} (goal)")
+        self.check_pose(T_goal, f"{what} (goal)", opening)
         rotations = Rotation.from_matrix(np.stack([T_start[:3, :3], T_goal[:3, :3]]))
         slerp = Slerp([0.0, 1.0], rotations)
         for s in np.linspace(0.0, 1.0, samples)[1:-1]:
             T = np.eye(4)
             T[:3, :3] = slerp([s]).as_matrix()[0]
             T[:3, 3] = (1 - s) * T_start[:3, 3] + s * T_goal[:3, 3]
-            self.check_pose(T, f"{what} (at {s:.0%} of the path)")
+            self.check_pose(T, f"{what} (at {s:.0%} of the path)", opening)
 
     def check_tool_motion(self, speed: float, acceleration: float) -> None:
         """Refuse a Cartesian speed or acceleration above the caps (or not positive)."""

@@ -205,7 +205,8 @@ class URArm:
         self.guard.check_joint_motion(speed, acceleration)
         start = self.joints()
         for s in np.linspace(0.0, 1.0, 21)[1:]:
-            self.guard.check_pose(self._gripper_pose_at((1 - s) * start + s * q), f"moveJ (at {s:.0%} of the path)")
+            self.guard.check_pose(self._gripper_pose_at((1 - s) * start + s * q), f"moveJ (at {s:.0%} of the path)",
+                                  self.guard.finger_opening)
         motion = PlannedMotion("moveJ", tuple(map(float, q)), float(speed), float(acceleration))
         goal = self._gripper_pose_at(q)
         if self.dry_run:
@@ -226,7 +227,7 @@ class URArm:
         target = np.asarray(T_world_gripper, dtype=np.float64)
         self.guard.check_tool_motion(speed, acceleration)
         start = self.tcp_pose()
-        self.guard.check_linear_path(start, target, "moveL")
+        self.guard.check_linear_path(start, target, "moveL", opening=self.guard.finger_opening)
         pose = ur_pose_from_matrix(target)
         motion = PlannedMotion("moveL", tuple(pose), float(speed), float(acceleration))
         if self.dry_run:
