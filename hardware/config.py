@@ -2,7 +2,9 @@
 
 `load_config(path)` reads and validates the file; every problem is reported as a `ConfigError` (a `ValueError`)
 that names the offending field, e.g. ``cell.yaml: limits.max_tool_speed: must be a positive number, got -1``.
-Unknown keys are errors too, so a typo cannot silently drop a limit. See `hardware/cell.example.yaml`.
+Unknown keys are errors too, so a typo cannot silently drop a limit, and so are duplicated keys (the strict reader
+in `hardware/fields.py`). The workspace box must be within the arm's reach and clear of the robot's base column.
+See `hardware/cell.example.yaml`.
 """
 
 from __future__ import annotations

@@ -36,13 +36,14 @@ class _StrictLoader(yaml.SafeLoader):
                 continue
             key = self.construct_object(key_node, deep=True)
             try:
-                line = first_line.setdefault(key, key_node.start_mark.line + 1)
+                seen = key in first_line
             except TypeError:  # an unhashable key: the base class reports it
                 continue
-            if line != key_node.start_mark.line + 1:
+            if seen:
                 raise yaml.constructor.ConstructorError(
-                    None, None, f"duplicate key {key!r}: first at line {line}, again at line "
+                    None, None, f"duplicate key {key!r}: first at line {first_line[key]}, again at line "
                     f"{key_node.start_mark.line + 1} (YAML would silently keep the last one)", key_node.start_mark)
+            first_line[key] = key_node.start_mark.line + 1
         return super().construct_mapping(node, deep)
 
     def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
@@ -116,8 +117,8 @@ class FieldReader:
             return float(default)
         value = data[key]
         if isinstance(value, str) and re.fullmatch(r"\s*[-+]?\d+(\.\d*)?[eE][-+]?\d+\s*", value):
-            raise self.error(name, f"YAML reads {value!r} as text: write it with a decimal point "
-                             f"(e.g. {float(value):.1e}) or as a plain decimal")
+            raise self.error(name, f"YAML reads {value!r} as text: write a plain decimal or a point and a signed "
+                             f"exponent (e.g. {float(value):.1e})")
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise self.error(name, f"must be a finite number, got {value!r}")
         if positive and value <= 0:

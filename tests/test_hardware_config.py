@@ -156,6 +156,9 @@ def test_duplicates_in_the_calibration_file_are_errors_too(tmp_path):
     with pytest.raises(ConfigError, match="calibration.file: .*duplicate key '012345678901': first at line 2, "
                                           "again at line 4"):
         load_config(write_config(tmp_path / "cell.yaml", data))
+    (tmp_path / "calibration.yaml").write_text(f'T_world_cam: {{"012345678901": {T}, "012345678901": {T}}}\n')
+    with pytest.raises(ConfigError, match="duplicate key '012345678901': first at line 1, again at line 1"):
+        load_config(tmp_path / "cell.yaml")  # in a one-line mapping too
     (tmp_path / "calibration.yaml").write_text(f'T_world_cam:\n  "012345678901": {T}\nT_world_cams: {{}}\n')
     with pytest.raises(ConfigError, match="unknown key 'T_world_cams'"):
         load_config(tmp_path / "cell.yaml")
