@@ -63,7 +63,7 @@ def read_yaml(path: Path, what: str, error: type[ValueError] = ValueError) -> An
     `what` and the path."""
     path = Path(path)
     if not path.is_file():
-        raise error(f"{what} {path} not found")
+        raise error(f"{what} {path} {'is a folder, not a file' if path.is_dir() else 'not found'}")
     try:
         return yaml.load(path.read_text(), Loader=_StrictLoader)  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
