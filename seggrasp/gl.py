@@ -1,9 +1,11 @@
-"""OpenGL set-up for pyrender: headless OSMesa rendering when there is no display, and one clear error when the
-platform's GL library is missing.
+"""OpenGL set-up for pyrender: OSMesa (headless software rendering) unless another platform is asked for, and one
+clear error when the platform's GL library is missing.
 
 PyOpenGL picks its platform (`PYOPENGL_PLATFORM`) once, when `OpenGL` is first imported, so every module that needs
-pyrender gets it from `import_pyrender()` here. Without a display (neither `DISPLAY` nor `WAYLAND_DISPLAY` set) and
-without an explicit `PYOPENGL_PLATFORM`, OSMesa (software rendering) is chosen. A missing GL library makes PyOpenGL
+pyrender gets it from `import_pyrender()` here. Without an explicit `PYOPENGL_PLATFORM`, OSMesa is chosen, with or
+without a display: it needs none, `scripts/install.sh` installs it, and it is the platform the face-id buffer is
+tested on (pyrender's other offscreen path goes through pyglet and a hidden window, and multisampled framebuffers;
+set `PYOPENGL_PLATFORM=egl` for a GPU). A missing GL library makes PyOpenGL
 fail deep inside `import pyrender` (`'NoneType' object has no attribute 'glGetError'`); here it is checked first and
 raised as `GLUnavailableError`, a one-sentence message naming the system package to install.
 """
@@ -14,7 +16,7 @@ import os
 import sys
 from types import ModuleType, TracebackType
 
-#: Debian package and library file PyOpenGL loads, per platform ("glx" is PyOpenGL's default on Linux).
+#: Debian package and library file PyOpenGL loads, per platform.
 GL_LIBRARIES = {
     "osmesa": ("libosmesa6", "libOSMesa.so"),
     "egl": ("libegl1", "libEGL.so"),
@@ -26,16 +28,11 @@ class GLUnavailableError(RuntimeError):
     """The OpenGL library of the selected platform cannot be loaded (a system package is missing)."""
 
 
-def has_display() -> bool:
-    """Whether an X11 or Wayland display is available to open a GL context on."""
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
-
-
-def select_platform() -> str | None:
-    """Choose OSMesa when there is no display and no platform was set; returns the platform PyOpenGL will use."""
-    if not os.environ.get("PYOPENGL_PLATFORM") and not has_display():
+def select_platform() -> str:
+    """Choose OSMesa unless `PYOPENGL_PLATFORM` names another platform; returns the platform PyOpenGL will use."""
+    if not os.environ.get("PYOPENGL_PLATFORM"):
         os.environ["PYOPENGL_PLATFORM"] = "osmesa"
-    return os.environ.get("PYOPENGL_PLATFORM") or None
+    return os.environ["PYOPENGL_PLATFORM"]
 
 
 def check_gl() -> None:
@@ -45,7 +42,7 @@ def check_gl() -> None:
 
     if platform.PLATFORM.GL is None:
         _print_without_traceback_if_uncaught()
-        raise GLUnavailableError(missing_library_message(platform_name or "glx"))
+        raise GLUnavailableError(missing_library_message(platform_name))
 
 
 def missing_library_message(platform_name: str) -> str:

@@ -1,4 +1,5 @@
-"""seggrasp.gl: headless OSMesa is chosen without a display; a missing GL library is one sentence, not a traceback."""
+"""seggrasp.gl: OSMesa is chosen unless another platform is set; a missing GL library is one sentence, not a
+traceback."""
 
 from __future__ import annotations
 
@@ -42,11 +43,12 @@ def _run_headless(tmp_path: Path, hidden: tuple[str, ...], *args: str) -> subpro
 
 @pytest.mark.parametrize(
     ("environment", "expected"),
-    [({}, "osmesa"), ({"DISPLAY": ":0"}, None), ({"WAYLAND_DISPLAY": "wayland-0"}, None),
-     ({"PYOPENGL_PLATFORM": "egl"}, "egl"), ({"DISPLAY": ":0", "PYOPENGL_PLATFORM": "osmesa"}, "osmesa")],
+    [({}, "osmesa"), ({"DISPLAY": ":0"}, "osmesa"), ({"WAYLAND_DISPLAY": "wayland-0"}, "osmesa"),
+     ({"PYOPENGL_PLATFORM": ""}, "osmesa"), ({"PYOPENGL_PLATFORM": "egl"}, "egl"),
+     ({"DISPLAY": ":0", "PYOPENGL_PLATFORM": "glx"}, "glx")],
 )
-def test_osmesa_is_chosen_only_without_a_display_and_platform(
-    monkeypatch: pytest.MonkeyPatch, environment: dict[str, str], expected: str | None
+def test_osmesa_is_chosen_unless_another_platform_is_set(
+    monkeypatch: pytest.MonkeyPatch, environment: dict[str, str], expected: str
 ) -> None:
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "PYOPENGL_PLATFORM"):
         monkeypatch.delenv(name, raising=False)
