@@ -111,6 +111,13 @@ def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
     return found
 
 
+def multipart_meshes() -> list[LabelledMesh]:
+    """The generated three- and four-part objects of `assets.catalog_multipart` (not yet in the twin)."""
+    from assets.catalog_multipart import multipart_meshes as build
+
+    return [LabelledMesh(g.spec.object_id, g.spec.category, g.mesh, g.labels) for g in build()]
+
+
 def ycb_meshes() -> list[LabelledMesh]:
     """The five labelled YCB scans (`seggrasp.datasets.load_ycb_set`; FileNotFoundError if the scans are absent)."""
     from seggrasp.datasets import load_ycb_set
@@ -459,7 +466,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
-                             "seggrasp.datasets), big (a twin object subdivided to --big-faces faces), or mesh names")
+                             "seggrasp.datasets), multipart (assets.catalog_multipart), big (a twin object subdivided to --big-faces faces), or mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
     parser.add_argument("--views", type=int, default=10)
@@ -494,6 +501,8 @@ def main(argv: list[str] | None = None) -> int:
         items += twin
     if "primitives" in wanted:
         items += primitive_meshes()
+    if "multipart" in wanted:
+        items += multipart_meshes()
     if "ycb" in wanted:
         try:
             items += ycb_meshes()
@@ -506,7 +515,7 @@ def main(argv: list[str] | None = None) -> int:
         if source is None:
             parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
         items.append(subdivided(source, args.big_faces))
-    named = [w for w in wanted if w not in ("twin", "primitives", "ycb", "big")]
+    named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:
         if name not in pool:
