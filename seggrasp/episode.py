@@ -300,13 +300,16 @@ class EpisodeContext:
     scene_seed: int
     gt_mesh: trimesh.Trimesh | None = None  # the labelled mesh (object frame), for ground-truth checks
     gt_labels: np.ndarray | None = None  # prompt index per face of gt_mesh, -1 elsewhere
+    center_of_mass: np.ndarray | None = None  # object frame (the URDF's inertial origin), for the grasp sampler
+    mass: float | None = None  # kg
 
     @classmethod
     def from_object(cls, model: ObjectModel, scene_seed: int, prompts: Sequence[str] | None = None) -> "EpisodeContext":
         """Context for a twin object (its prompts and, when labelled, its ground truth)."""
         prompts = list(prompts) if prompts is not None else list(model.prompts)
         gt = model.labels.remap_to(prompts) if model.labels is not None else None
-        return cls(model.object_id, model.category, prompts, scene_seed, model.mesh, gt)
+        return cls(model.object_id, model.category, prompts, scene_seed, model.mesh, gt, model.center_of_mass,
+                   model.mass)
 
 
 def plan_trials(
@@ -431,7 +434,11 @@ def run_episode(
     if plan.own_grasps is None:
         generator = generator or AntipodalSampler()
         plane = table_plane_in_object_frame(observation.mesh, observation.T_world_obj)
-        grasps = generator.generate(observation.mesh, seed=seed, table_plane=plane)
+        if isinstance(generator, AntipodalSampler) and not observation.perceived:  # the twin's true CoM and mass
+            grasps = generator.generate(observation.mesh, seed=seed, table_plane=plane,
+                                        center_of_mass=context.center_of_mass, mass=context.mass)
+        else:  # a perceived mesh: the sampler's uniform-density estimate, as on the real cell
+            grasps = generator.generate(observation.mesh, seed=seed, table_plane=plane)
     records = []
     for slot in plan_trials(context, observation, plan, grasps, target_indices, top_k):
         record = execute_slot(cell, context, observation, plan, slot, seed, outcome_cache)
