@@ -1,6 +1,7 @@
 """Analytic antipodal grasp sampler for a parallel gripper (no learned weights).
 
-1. Sample surface points (area-weighted, seeded) with their face normals.
+1. Sample surface points (area-weighted, seeded; half of them concentrated near the centre of mass) with their face
+   normals.
 2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
@@ -46,6 +47,8 @@ class AntipodalConfig:
 
     n_surface_samples: int = 6000
     n_approaches: int = 8
+    near_com_fraction: float = 0.5  # of the surface samples drawn near the centre of mass
+    near_com_scale: float = 0.05  # m
     friction_coefficient: float = 0.5
     min_width: float = 0.001
     width_margin: float = 0.005  # contact distance must stay this far below the stroke
@@ -115,7 +118,8 @@ class AntipodalSampler:
         normals_sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
         face_normals = normals_sign * np.asarray(mesh.face_normals)
 
-        points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples, seed=int(rng.integers(2**31)))
+        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
+        points, faces = _surface_samples(mesh, cfg, com, rng)
         normals = face_normals[faces]
         p, q, n_p, n_q = _opposite_contacts(mesh, points, normals, face_normals)
         width = np.linalg.norm(q - p, axis=1)
@@ -147,6 +151,8 @@ class AntipodalSampler:
             if plane is not None:
                 free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
             free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
+            # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
+            free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
             depth_index[todo[free]] = index
         free = depth_index >= 0
         if not free.any():
@@ -163,7 +169,6 @@ class AntipodalSampler:
         if not len(poses):
             return GraspSet.empty()
 
-        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
         closeness = 1.0 - np.clip(np.linalg.norm(poses[:, :3, 3] - com, axis=1) / radius, 0.0, 1.0)
         score = cfg.weight_antipodality * antipodality[pair_index] + cfg.weight_center_of_mass * closeness
@@ -209,15 +214,20 @@ class AntipodalSampler:
                 widths[index] = span[wider]
         return widths
 
-    def _collision_free(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    def _collision_free(
+        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
+    ) -> np.ndarray:
         """True where no cloud point lies inside a finger, the palm or the wrist. A sparse subset of the cloud
         rejects most colliding poses cheaply; the survivors are checked against the whole cloud."""
-        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE])
-        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud)
+        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE], closed)
+        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud, closed)
         return free
 
-    def _cloud_outside_gripper(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses)."""
+    def _cloud_outside_gripper(
+        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
+    ) -> np.ndarray:
+        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses); `closed`
+        tests only the finger boxes behind the pads (the pads themselves close on the object)."""
         g = self.gripper
         free = np.ones(len(poses), dtype=bool)
         cloud32 = cloud.astype(np.float32)
@@ -229,9 +239,9 @@ class AntipodalSampler:
             local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
             ax, ay, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
             hit = np.zeros(ax.shape, dtype=bool)
-            for inner, outer, half_y, z_min, z_max in g.finger_boxes:  # mirrored: test |x|
+            for inner, outer, half_y, z_min, z_max in g.finger_boxes[1 if closed else 0 :]:  # mirrored: test |x|
                 hit |= (ax >= half + inner) & (ax <= half + outer) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
-            for half_x, half_y, z_min, z_max in g.centre_boxes:
+            for half_x, half_y, z_min, z_max in () if closed else g.centre_boxes:
                 hit |= (ax <= half_x) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
             free[start : start + COLLISION_CHUNK] = ~hit.any(axis=1)
         return free
@@ -313,6 +323,21 @@ def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> 
     count = int(np.clip(mesh.area / cfg.collision_point_spacing**2, cfg.min_collision_points, cfg.max_collision_points))
     points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     return points
+
+
+def _surface_samples(
+    mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted surface points; `near_com_fraction` of them drawn with the face weights also falling off
+    with the distance from the centre of mass (scale `near_com_scale`), where the grasps that hold lie."""
+    n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples))
+    points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples - n_near, seed=int(rng.integers(2**31)))
+    if n_near == 0:
+        return points, faces
+    distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
+    weight = mesh.area_faces * np.exp(-((distance / cfg.near_com_scale) ** 2))
+    near, near_faces = trimesh.sample.sample_surface(mesh, n_near, face_weight=weight, seed=int(rng.integers(2**31)))
+    return np.concatenate([points, near]), np.concatenate([faces, near_faces])
 
 
 def gravity_torque(poses: np.ndarray, com: np.ndarray, up: np.ndarray, mass: float) -> np.ndarray:
