@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import io
 import logging
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -126,7 +127,8 @@ def main() -> None:
     if args.trials < 1:
         parser.error("--trials must be at least 1")
     logging.basicConfig(level=logging.WARNING)
-    lines = []
+    lines = [f"load average before the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"]
+    print(lines[0], flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)
         for embodiment in ("arm", "floating"):

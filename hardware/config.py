@@ -317,7 +317,7 @@ def _parse_gripper(r: _Reader, data: dict, robot_ip: str) -> GripperConfig:
         closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
         timeout=r.number(section, "timeout", p, 5.0, positive=True),
         speed=r.number(section, "speed", p, 0.05, positive=True),
-        force=r.number(section, "force", p, 40.0, positive=True),
+        force=r.number(section, "force", p, 100.0, positive=True),
         tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
         closing_shift=r.number(section, "closing_shift", p, 0.0),
     )

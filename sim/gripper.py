@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet
 
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from sim.world import PATH_RESOLUTION, World, linear_poses, pose_to_pb
 
 FINGER_JOINT = "finger_joint"
@@ -44,10 +45,6 @@ PAD_SPINNING_FRICTION = 0.002
 PAD_ROLLING_FRICTION = 0.0001
 
 
-#: The 2F-85's grip force range (datasheet, N) and the cell's default setting (hardware/cell.example.yaml
-#: `gripper.force`; the twin and the real cell use the same default).
-GRIP_FORCE_RANGE = (20.0, 235.0)
-DEFAULT_GRIP_FORCE = 40.0
 #: `finger_joint` torque (N m) per newton of grip force: the linkage's lever from the motor to the pad centres
 #: (about 8 cm over the stroke; tests/test_sim_gripper.py checks the resulting squeeze).
 TORQUE_PER_NEWTON = 0.08

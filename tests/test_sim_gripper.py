@@ -7,11 +7,14 @@ import pytest
 import yaml
 
 from sim.cell import SimCell
-from sim.gripper import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE, PAD_THICKNESS, GripperSettings
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
+from sim.gripper import PAD_THICKNESS, GripperSettings
 from sim.primitives import primitive_object, top_down_grasp
 from sim.world import COLLISION_SKIN
 
 SIZES_MM = (10, 30, 60)
+#: The real cell's former (and the issue's) reference setting.
+FORCE_40N = 40.0
 
 
 def _close_on(kind: str, size_mm: int, force: float, directory) -> tuple[float, float, float]:
@@ -43,8 +46,8 @@ def _close_on(kind: str, size_mm: int, force: float, directory) -> tuple[float, 
 
 @pytest.mark.parametrize("kind", ["box", "cylinder"])
 @pytest.mark.parametrize("size_mm", SIZES_MM)
-def test_closing_at_the_default_force_stops_on_the_surface(kind, size_mm, tmp_path):
-    width_error, penetration, asymmetry = _close_on(kind, size_mm, DEFAULT_GRIP_FORCE, tmp_path)
+def test_closing_at_40n_stops_on_the_surface(kind, size_mm, tmp_path):
+    width_error, penetration, asymmetry = _close_on(kind, size_mm, FORCE_40N, tmp_path)
     assert abs(width_error) < 0.001
     assert penetration < 0.0005
     assert asymmetry < 0.001
@@ -67,7 +70,7 @@ def test_closing_at_the_maximum_force_stays_on_the_surface(tmp_path):
 def test_grip_force_is_a_setting_within_the_2f85_range_shared_with_the_real_cell():
     with open(Path(__file__).resolve().parents[1] / "hardware" / "cell.example.yaml") as handle:
         assert yaml.safe_load(handle)["gripper"]["force"] == DEFAULT_GRIP_FORCE
-    assert GripperSettings().closing_torque == pytest.approx(GripperSettings(DEFAULT_GRIP_FORCE).closing_torque)
+    assert GripperSettings().grip_force == DEFAULT_GRIP_FORCE
     assert GripperSettings(GRIP_FORCE_RANGE[1]).closing_torque > GripperSettings().closing_torque
     with pytest.raises(ValueError, match="grip_force"):
         GripperSettings(grip_force=300.0)

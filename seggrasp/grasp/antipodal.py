@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 
 LOG = logging.getLogger(__name__)
@@ -63,10 +64,10 @@ class AntipodalConfig:
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
-    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius (0.1 N m by default:
+    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius (0.1 N m at 40 N:
     # issue 12 measured on the twin that grasps above it mostly turn or drop, below it mostly hold)
     default_mass: float = 0.3
-    grip_force: float = 40.0
+    grip_force: float = DEFAULT_GRIP_FORCE
     torsion_radius: float = 0.0025
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
