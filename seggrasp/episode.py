@@ -204,7 +204,7 @@ class Episode:
         self,
         cell: Cell,
         context: EpisodeContext,
-        detector: DetectorSpec,
+        detector: DetectorSpec | None = None,
         truth: GroundTruth | None = None,
         settings: EpisodeSettings = EpisodeSettings(),
         *,
@@ -243,6 +243,8 @@ class Episode:
     def segmenter(self) -> ObjectSegmenter:
         """The method's segmenter on the planning mesh; the detector is built only when votes must be computed."""
         if self._segmenter is None:
+            if self.detector is None:
+                raise ValueError("this episode was given no detector: it can execute grasps but not segment")
             mesh = self.observation.mesh
             prepared = prepare_mesh(mesh.vertices, mesh.faces, name="object")
             shape = (len(mesh.faces), len(self.context.prompts))

@@ -1,4 +1,4 @@
-"""The same episode code (seggrasp.episode.run_episode) end to end on `RealCell` with fakes: the cameras replay
+"""The same episode code (seggrasp.episode.Episode) end to end on `RealCell` with fakes: the cameras replay
 frames recorded from the simulated D435s, the mesh comes from seggrasp.perception, the arm is a fake RTDE pair and
 the gripper a fake URCap server holding an object of the cylinder's width."""
 
@@ -13,7 +13,8 @@ from fakes_hardware import FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, e
 from hardware import RealCell
 from hardware.ur import matrix_from_ur_pose
 from seggrasp.detect.base import Detections
-from seggrasp.episode import DetectorSpec, EpisodeContext, run_episode
+from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings
+from seggrasp.truth import DetectorSpec
 
 pytest.importorskip("seggrasp.perception")
 
@@ -38,6 +39,7 @@ class WholeViewSpec(DetectorSpec):
     name: str = "whole-view"
 
     def build(self, gt_labels):
+        assert gt_labels is None  # the real cell has no ground truth
         return WholeViewDetector()
 
 
@@ -74,8 +76,8 @@ def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
         server.object_register = cell.gripper.width_to_register(2 * RADIUS)
         try:
             context = EpisodeContext(object_id="cylinder", category="cylinder", prompts=["side"], scene_seed=0)
-            records = run_episode(cell, context, "coarse", WholeViewSpec(), top_k=2, seed=0, perceive=True,
-                                  workspace=cell.workspace)
+            settings = EpisodeSettings(seed=0, top_k=2, perceive=True, workspace=cell.workspace)
+            records = Episode(cell, context, WholeViewSpec(), settings=settings).run("coarse")
         finally:
             cell.close()
 

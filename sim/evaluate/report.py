@@ -61,7 +61,7 @@ def failure_name(record: dict) -> str:
     named = (record.get("outcome") or {}).get("failure", "")
     if named:
         return named
-    return "wrong_part" if record["lifted"] and record.get("touched_on_part") is False else UNNAMED_FAILURE
+    return "wrong_part" if record.get("lifted") and record.get("touched_on_part") is False else UNNAMED_FAILURE
 
 
 def _rate(values: list, rate) -> float | None:
