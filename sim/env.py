@@ -185,7 +185,8 @@ class SegGraspEnv(gym.Env):
         self.prompt = prompt
         self._episode = Episode(self.cell, context, truth=truth)
         self._prompt_index = find_prompt(context.prompts, prompt)
-        info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt}
+        info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt,
+                "scene_seed": cell_seed}
         return self._observation(), info
 
     def _twin_subject(self, scene_seed: int, prompt: str | None) -> tuple[EpisodeContext, GroundTruth | None, str]:

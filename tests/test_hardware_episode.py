@@ -1,6 +1,7 @@
 """The same episode code (seggrasp.episode.Episode) end to end on `RealCell` with fakes: the cameras replay
 frames recorded from the simulated D435s, the mesh comes from seggrasp.perception, the arm is a fake RTDE pair and
-the gripper a fake URCap server holding an object of the cylinder's width."""
+the gripper a fake URCap server holding an object of the cylinder's width. And one slot run by `sim.evaluate`'s
+runner, by the gym env and by the real backend gives the same record."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 from fakes_hardware import FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, example_config, write_config
 from hardware import RealCell
 from hardware.ur import matrix_from_ur_pose
+from scipy.spatial.transform import Rotation
 from seggrasp.detect.base import Detections
 from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings
 from seggrasp.truth import DetectorSpec
@@ -56,23 +58,27 @@ def sim_frames(tmp_path_factory):
     return frames, T_world_obj
 
 
+def real_cell_config(tmp_path, frames, server) -> tuple[str, FakeUR, dict]:
+    """cell.yaml for the fakes, the fake arm, and the keyword arguments that plug the fakes into `RealCell`."""
+    data = example_config()
+    data["robot"]["home_joints"] = HOME_FACING_PLUS_X
+    data["gripper"].update(host="127.0.0.1", port=server.port)
+    data["workspace"] = {"min": [0.25, -0.25, 0.0], "max": [0.75, 0.25, 0.5]}
+    data["motion"]["hold_time"] = 0.05
+    data["cameras"] = [{"serial": f"sim{i}", "name": frame.name} for i, frame in enumerate(frames)]
+    data["calibration"] = {"T_world_cam": {f"sim{i}": frame.T_world_cam.tolist() for i, frame in enumerate(frames)}}
+    path = write_config(tmp_path / "cell.yaml", data)
+    ur = FakeUR("ur5", np.array(HOME_FACING_PLUS_X))
+    fakes = dict(control_factory=ur.control, receive_factory=ur.receive, align_factory=FakeAlign,
+                 pipeline_factory=lambda serial: FakePipeline([frames[int(serial[3:])]]), camera_warmup_frames=0)
+    return str(path), ur, fakes
+
+
 def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
     frames, T_world_obj = sim_frames
     with FakeRobotiqServer(newline=True) as server:
-        data = example_config()
-        data["robot"]["home_joints"] = HOME_FACING_PLUS_X
-        data["gripper"].update(host="127.0.0.1", port=server.port)
-        data["workspace"] = {"min": [0.25, -0.25, 0.0], "max": [0.75, 0.25, 0.5]}
-        data["motion"]["hold_time"] = 0.05
-        data["cameras"] = [{"serial": f"sim{i}", "name": frame.name} for i, frame in enumerate(frames)]
-        data["calibration"] = {"T_world_cam": {f"sim{i}": frame.T_world_cam.tolist()
-                                               for i, frame in enumerate(frames)}}
-        path = write_config(tmp_path / "cell.yaml", data)
-        ur = FakeUR("ur5", np.array(HOME_FACING_PLUS_X))
-        cell = RealCell.from_config(
-            path, control_factory=ur.control, receive_factory=ur.receive,
-            pipeline_factory=lambda serial: FakePipeline([frames[int(serial[3:])]]), align_factory=FakeAlign,
-            camera_warmup_frames=0)
+        path, ur, fakes = real_cell_config(tmp_path, frames, server)
+        cell = RealCell.from_config(path, **fakes)
         server.object_register = cell.gripper.width_to_register(2 * RADIUS)
         try:
             context = EpisodeContext(object_id="cylinder", category="cylinder", prompts=["side"], scene_seed=0)
@@ -96,3 +102,101 @@ def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
         assert np.linalg.norm(axis_offset) < 0.015
         assert 0.0 < commanded[2, 3] < HEIGHT  # between the table (z = 0) and the cylinder's top
         assert 0.04 < record.width < 2 * RADIUS + 0.015  # across the perceived cylinder (+ any sampler margin)
+
+
+#: Fields that say where a grasp came from (a method's plan, or the env's action); all others must agree.
+PROVENANCE = {"method", "detector", "rank", "n_candidates", "grasp_score", "contacts_on_part", "extra"}
+
+
+def _action(T_world_grasp: np.ndarray, width: float) -> np.ndarray:
+    return np.r_[T_world_grasp[:3, 3], Rotation.from_matrix(T_world_grasp[:3, :3]).as_rotvec(), width]
+
+
+def _spy_on_execute(cell) -> list:
+    """Keep every (pose, width) the cell is asked to execute, and execute poses at 1e-6 resolution (as a UR
+    controller takes them): the twin's contacts answer even a 1e-16 change of pose (the action's rotation vector
+    round trip) with a different lift, so without this the env's step could not replay the runner's grasp."""
+    calls, execute = [], cell.execute
+
+    def spied(T, width):
+        calls.append((np.array(T), width))
+        return execute(np.round(T, 6), width)
+
+    cell.execute = spied
+    return calls
+
+
+def _assert_same_record(runner: dict, env: dict) -> None:
+    """Field by field; floats within 1e-5."""
+    assert set(runner) == set(env)
+    for name in sorted(set(runner) - PROVENANCE):
+        if isinstance(runner[name], float) or name in ("T_world_grasp", "quaternion_xyzw"):
+            np.testing.assert_allclose(env[name], runner[name], atol=1e-5, err_msg=name)
+        elif name == "outcome":
+            for key, value in runner[name].items():
+                if isinstance(value, float):
+                    np.testing.assert_allclose(env[name][key], value, atol=1e-5, err_msg=f"outcome.{key}")
+                else:
+                    assert env[name][key] == value, f"outcome.{key}"
+        else:
+            assert env[name] == runner[name], name
+
+
+def _runner_slot(cell, context, truth, config, tmp_path, executed, detector=None) -> tuple[dict, np.ndarray]:
+    """The runner's record of the prompt "side" (top-1) and the action that executes the same grasp."""
+    from sim.evaluate import JsonLines, run_object
+
+    out = tmp_path / f"runner-{config.backend}"
+    assert run_object(cell, context, truth, config, out, detector=detector) == len(context.prompts)
+    (record,) = [r for r in JsonLines(out / "trials.jsonl").read() if r["prompt"] == "side"]
+    (T, width), = [(T, w) for T, w in executed if np.array_equal(np.round(T, 6), record["T_world_grasp"])]
+    return record, _action(T, width)
+
+
+def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_backend(tmp_path, sim_frames):
+    """Issue 14: `sim.evaluate`'s runner, `SegGrasp-v0` and the real backend run the same episode code."""
+    from seggrasp.episode import EpisodeContext
+    from seggrasp.truth import GroundTruth
+    from sim.env import SegGraspEnv
+    from sim.evaluate import RunConfig
+    from sim.primitives import primitive_object
+
+    # simulator, one cell: the runner's oracle slot, then the same grasp as the env's action in the same scene
+    model = primitive_object("cylinder", (RADIUS, HEIGHT), tmp_path / "objects", mass=0.2, object_id="cylinder")
+    env = SegGraspEnv([model], embodiment="floating", image_size=(160, 120))
+    try:
+        _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+        context = EpisodeContext.from_object(model, info["scene_seed"], prompts=model.labels.parts)
+        config = RunConfig(methods=["oracle"], objects=["cylinder"], top_k=1)
+        cell = env.unwrapped.cell
+        truth = GroundTruth.of_object(model, context.prompts, true_pose=lambda: cell.object_mesh()[1])
+        executed = _spy_on_execute(cell)
+        runner, action = _runner_slot(cell, context, truth, config, tmp_path, executed)
+        assert runner["executed"] and runner["outcome"]["contacts_observed"]
+        env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+        _, reward, _, _, step_info = env.step(action)
+    finally:
+        env.close()
+    _assert_same_record(runner, step_info["record"])
+    assert reward == float(runner["success"])
+
+    # real backend (fakes), one cell: the runner's coarse slot on the perceived mesh, then the env's step with it
+    frames, _ = sim_frames
+    with FakeRobotiqServer(newline=True) as server:
+        path, _, fakes = real_cell_config(tmp_path, frames, server)
+        env = SegGraspEnv(backend="real", config=path, **fakes)
+        try:
+            server.object_register = env.cell.gripper.width_to_register(2 * RADIUS)
+            _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+            context = EpisodeContext("cylinder", "real", ["side"], info["scene_seed"])
+            config = RunConfig(methods=["coarse"], objects=["cylinder"], top_k=1, backend="real", perceive=True)
+            executed = _spy_on_execute(env.unwrapped.cell)
+            real, action = _runner_slot(env.unwrapped.cell, context, None, config, tmp_path, executed,
+                                        detector=WholeViewSpec())
+            assert real["executed"] and real["success"] is None and not real["outcome"]["contacts_observed"]
+            env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+            _, reward, _, _, step_info = env.step(action)
+        finally:
+            env.close()
+    _assert_same_record(real, step_info["record"])
+    assert reward == float(real["lifted"])
