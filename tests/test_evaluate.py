@@ -93,30 +93,29 @@ def test_bad_arguments_exit_with_a_message(capsys) -> None:
     assert "unknown object" in capsys.readouterr().err
 
 
-def test_resume_skips_recorded_trials_and_refuses_a_different_setup(tmp_path) -> None:
+def test_resume_skips_recorded_trials_and_refuses_a_different_setup(tmp_path, capsys) -> None:
     out = tmp_path / "run"
-    first = _evaluate(*SMALL, "--out", str(out))
-    assert first.returncode == 0, first.stderr
+    assert main([*SMALL, "--out", str(out)]) == 0
     records = _trials(out)
     assert len(records) == 2 * 4  # two prompts x top-4
     assert len({(r["prompt"], r["rank"]) for r in records}) == 8
 
-    again = _evaluate(*SMALL, "--out", str(out))
-    assert again.returncode == 2 and "--resume" in again.stderr
+    capsys.readouterr()
+    assert main([*SMALL, "--out", str(out)]) == 2
+    assert "--resume" in capsys.readouterr().err
 
     # drop the last three trials: a resumed run records exactly those, with the same outcomes
     lines = (out / "trials.jsonl").read_text().splitlines(keepends=True)
     (out / "trials.jsonl").write_text("".join(lines[:-3]))
-    resumed = _evaluate(*SMALL, "--out", str(out), "--resume")
-    assert resumed.returncode == 0, resumed.stderr
+    assert main([*SMALL, "--out", str(out), "--resume"]) == 0
+    assert "8/8 trials recorded" in capsys.readouterr().out
     redone = _trials(out)
     assert len(redone) == 8
     strip = lambda r: {k: v for k, v in r.items() if k != "reused_outcome"}  # noqa: E731
     assert [strip(r) for r in redone[-3:]] == [strip(json.loads(line)) for line in lines[-3:]]
-    assert "8/8 trials recorded" in resumed.stdout
 
-    other = _evaluate(*SMALL[:-2], "--top-k", "2", "--out", str(out), "--resume")
-    assert other.returncode == 2 and "settings differ" in other.stderr
+    assert main([*SMALL[:-2], "--top-k", "2", "--out", str(out), "--resume"]) == 2
+    assert "settings differ" in capsys.readouterr().err
 
 
 IN_PROCESS = ["--objects", "mug_classic", "--methods", "coarse,oracle", "--embodiment", "floating", "--top-k", "1"]

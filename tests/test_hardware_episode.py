@@ -153,6 +153,16 @@ def _runner_slot(cell, context, truth, config, tmp_path, executed, detector=None
     return record, _action(T, width)
 
 
+def _runner_then_env(env, context, truth, config, tmp_path, detector=None) -> tuple[dict, dict, float]:
+    """On the env's own cell: the runner's record of the slot, then the env's record and reward for its grasp."""
+    executed = _spy_on_execute(env.unwrapped.cell)
+    runner, action = _runner_slot(env.unwrapped.cell, context, truth, config, tmp_path, executed, detector)
+    assert runner["executed"], runner["message"]
+    env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+    _, reward, _, _, step_info = env.step(action)
+    return runner, step_info["record"], reward
+
+
 def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_backend(tmp_path, sim_frames):
     """Issue 14: `sim.evaluate`'s runner, `SegGrasp-v0` and the real backend run the same episode code."""
     from seggrasp.episode import EpisodeContext
@@ -168,16 +178,12 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
         _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
         context = EpisodeContext.from_object(model, info["scene_seed"], prompts=model.labels.parts)
         config = RunConfig(methods=["oracle"], objects=["cylinder"], top_k=1)
-        cell = env.unwrapped.cell
-        truth = GroundTruth.of_object(model, context.prompts, true_pose=lambda: cell.object_mesh()[1])
-        executed = _spy_on_execute(cell)
-        runner, action = _runner_slot(cell, context, truth, config, tmp_path, executed)
-        assert runner["executed"] and runner["outcome"]["contacts_observed"]
-        env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
-        _, reward, _, _, step_info = env.step(action)
+        truth = GroundTruth.of_object(model, context.prompts, true_pose=lambda: env.unwrapped.cell.object_mesh()[1])
+        runner, stepped, reward = _runner_then_env(env, context, truth, config, tmp_path)
     finally:
         env.close()
-    _assert_same_record(runner, step_info["record"])
+    assert runner["outcome"]["contacts_observed"]
+    _assert_same_record(runner, stepped)
     assert reward == float(runner["success"])
 
     # real backend (fakes), one cell: the runner's coarse slot on the perceived mesh, then the env's step with it
@@ -190,13 +196,9 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
             _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
             context = EpisodeContext("cylinder", "real", ["side"], info["scene_seed"])
             config = RunConfig(methods=["coarse"], objects=["cylinder"], top_k=1, backend="real", perceive=True)
-            executed = _spy_on_execute(env.unwrapped.cell)
-            real, action = _runner_slot(env.unwrapped.cell, context, None, config, tmp_path, executed,
-                                        detector=WholeViewSpec())
-            assert real["executed"] and real["success"] is None and not real["outcome"]["contacts_observed"]
-            env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
-            _, reward, _, _, step_info = env.step(action)
+            real, stepped, reward = _runner_then_env(env, context, None, config, tmp_path, WholeViewSpec())
         finally:
             env.close()
-    _assert_same_record(real, step_info["record"])
+    assert real["success"] is None and not real["outcome"]["contacts_observed"]
+    _assert_same_record(real, stepped)
     assert reward == float(real["lifted"])
