@@ -1,7 +1,7 @@
-"""The same episode code (seggrasp.episode.Episode) end to end on `RealCell` with fakes: the cameras replay
-frames recorded from the simulated D435s, the mesh comes from seggrasp.perception, the arm is a fake RTDE pair and
-the gripper a fake URCap server holding an object of the cylinder's width. And one slot run by `sim.evaluate`'s
-runner, by the gym env and by the real backend gives the same record."""
+"""One slot run by `sim.evaluate`'s runner and by the gym env `SegGrasp-v0`, on the twin and on `RealCell` with
+fakes, gives the same record: the same episode code (seggrasp.episode.Episode) everywhere. On the real cell the
+cameras replay frames recorded from the simulated D435s, the mesh comes from seggrasp.perception, the arm is a fake
+RTDE pair and the gripper a fake URCap server holding an object of the cylinder's width."""
 
 from __future__ import annotations
 
@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 from fakes_hardware import FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, example_config, write_config
-from hardware import RealCell
 from hardware.ur import matrix_from_ur_pose
 from scipy.spatial.transform import Rotation
 from seggrasp.detect.base import Detections
-from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings
-from seggrasp.truth import DetectorSpec
+from seggrasp.episode import EpisodeContext
+from seggrasp.truth import DetectorSpec, GroundTruth
+from sim.env import SegGraspEnv
+from sim.evaluate import JsonLines, RunConfig, run_object
+from sim.primitives import primitive_object
 
 pytest.importorskip("seggrasp.perception")
 
@@ -49,7 +51,6 @@ class WholeViewSpec(DetectorSpec):
 def sim_frames(tmp_path_factory):
     """Frames of a cylinder on the table from the twin's virtual D435s."""
     from sim.cell import SimCell
-    from sim.primitives import primitive_object
 
     model = primitive_object("cylinder", (RADIUS, HEIGHT), tmp_path_factory.mktemp("objects"), mass=0.2)
     with SimCell([model], embodiment="floating", seed=0, image_size=(320, 240)) as cell:
@@ -72,36 +73,6 @@ def real_cell_config(tmp_path, frames, server) -> tuple[str, FakeUR, dict]:
     fakes = dict(control_factory=ur.control, receive_factory=ur.receive, align_factory=FakeAlign,
                  pipeline_factory=lambda serial: FakePipeline([frames[int(serial[3:])]]), camera_warmup_frames=0)
     return str(path), ur, fakes
-
-
-def test_episode_runs_end_to_end_on_the_real_cell(tmp_path, sim_frames):
-    frames, T_world_obj = sim_frames
-    with FakeRobotiqServer(newline=True) as server:
-        path, ur, fakes = real_cell_config(tmp_path, frames, server)
-        cell = RealCell.from_config(path, **fakes)
-        server.object_register = cell.gripper.width_to_register(2 * RADIUS)
-        try:
-            context = EpisodeContext(object_id="cylinder", category="cylinder", prompts=["side"], scene_seed=0)
-            settings = EpisodeSettings(seed=0, top_k=2, perceive=True, workspace=cell.workspace)
-            records = Episode(cell, context, WholeViewSpec(), settings=settings).run("coarse")
-        finally:
-            cell.close()
-
-    assert len(records) == 2
-    # each trial: reset (retract if low, home), then pre-grasp, grasp, lift, put back, back off
-    names = [name for name, _ in ur.motions]
-    assert names == ["moveJ"] + ["moveJ"] + ["moveL"] * 5 + ["moveL", "moveJ"] + ["moveL"] * 5
-    grasp_poses = [matrix_from_ur_pose(ur.motions[i][1][0]) for i in (3, 10)]
-    for record, commanded in zip(records, grasp_poses):
-        assert record.executed and record.reachable and record.lifted, record.message
-        assert record.lift_height == pytest.approx(0.2) and record.outcome["contacts_observed"] is False
-        assert record.success is None  # no ground truth on the real cell
-        # the arm went exactly where the episode asked, and that is on the perceived cylinder's side
-        np.testing.assert_allclose(commanded, np.array(record.T_world_grasp), atol=1e-6)
-        axis_offset = commanded[:2, 3] - T_world_obj[:2, 3]
-        assert np.linalg.norm(axis_offset) < 0.015
-        assert 0.0 < commanded[2, 3] < HEIGHT  # between the table (z = 0) and the cylinder's top
-        assert 0.04 < record.width < 2 * RADIUS + 0.015  # across the perceived cylinder (+ any sampler margin)
 
 
 #: Fields that say where a grasp came from (a method's plan, or the env's action); all others must agree.
@@ -144,8 +115,6 @@ def _assert_same_record(runner: dict, env: dict) -> None:
 
 def _runner_slot(cell, context, truth, config, tmp_path, executed, detector=None) -> tuple[dict, np.ndarray]:
     """The runner's record of the prompt "side" (top-1) and the action that executes the same grasp."""
-    from sim.evaluate import JsonLines, run_object
-
     out = tmp_path / f"runner-{config.backend}"
     assert run_object(cell, context, truth, config, out, detector=detector) == len(context.prompts)
     (record,) = [r for r in JsonLines(out / "trials.jsonl").read() if r["prompt"] == "side"]
@@ -165,12 +134,6 @@ def _runner_then_env(env, context, truth, config, tmp_path, detector=None) -> tu
 
 def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_backend(tmp_path, sim_frames):
     """Issue 14: `sim.evaluate`'s runner, `SegGrasp-v0` and the real backend run the same episode code."""
-    from seggrasp.episode import EpisodeContext
-    from seggrasp.truth import GroundTruth
-    from sim.env import SegGraspEnv
-    from sim.evaluate import RunConfig
-    from sim.primitives import primitive_object
-
     # simulator, one cell: the runner's oracle slot, then the same grasp as the env's action in the same scene
     model = primitive_object("cylinder", (RADIUS, HEIGHT), tmp_path / "objects", mass=0.2, object_id="cylinder")
     env = SegGraspEnv([model], embodiment="floating", image_size=(160, 120))
@@ -187,9 +150,9 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
     assert reward == float(runner["success"])
 
     # real backend (fakes), one cell: the runner's coarse slot on the perceived mesh, then the env's step with it
-    frames, _ = sim_frames
+    frames, T_world_obj = sim_frames
     with FakeRobotiqServer(newline=True) as server:
-        path, _, fakes = real_cell_config(tmp_path, frames, server)
+        path, ur, fakes = real_cell_config(tmp_path, frames, server)
         env = SegGraspEnv(backend="real", config=path, **fakes)
         try:
             server.object_register = env.cell.gripper.width_to_register(2 * RADIUS)
@@ -199,6 +162,14 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
             real, stepped, reward = _runner_then_env(env, context, None, config, tmp_path, WholeViewSpec())
         finally:
             env.close()
-    assert real["success"] is None and not real["outcome"]["contacts_observed"]
+    assert real["success"] is None and not real["outcome"]["contacts_observed"]  # no ground truth on a real cell
+    assert real["reachable"] and real["lifted"] and real["lift_height"] == pytest.approx(0.2), real["message"]
     _assert_same_record(real, stepped)
     assert reward == float(real["lifted"])
+    # the arm went exactly where the episode asked, once per harness, and that is on the perceived cylinder's side
+    grasp = np.array(real["T_world_grasp"])
+    commanded = [matrix_from_ur_pose(args[0]) for name, args in ur.motions if name == "moveL"]
+    assert sum(np.allclose(T, grasp, atol=1e-6) for T in commanded) == 2
+    assert np.linalg.norm(grasp[:2, 3] - T_world_obj[:2, 3]) < 0.015
+    assert 0.0 < grasp[2, 3] < HEIGHT  # between the table (z = 0) and the cylinder's top
+    assert 0.04 < real["width"] < 2 * RADIUS + 0.015  # across the perceived cylinder (+ any sampler margin)
