@@ -71,8 +71,11 @@ def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, 
 
 def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
     cache: dict = {}
-    first = run_episode(cell, cylinder, "oracle", targets=["side"], top_k=2, outcome_cache=cache)
-    again = run_episode(cell, cylinder, "oracle", targets=["side"], top_k=2, outcome_cache=cache)
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    truth = GroundTruth.of_object(cylinder, context.prompts)
+    episode = Episode(cell, context, None, truth, EpisodeSettings(top_k=2), outcome_cache=cache)
+    first = episode.run("oracle", ["side"])
+    again = episode.run("oracle", ["side"])
     assert len(cache) == 2
     assert not any(r.reused_outcome for r in first) and all(r.reused_outcome for r in again)
     assert [r.lift_height for r in first] == [r.lift_height for r in again]
