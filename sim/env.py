@@ -120,6 +120,7 @@ class SegGraspEnv(gym.Env):
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
         self.prompt: str | None = None
         self._episode: Episode | None = None  # set by a successful reset, cleared when the step ends the episode
+        self.scene_seed: int | None = None  # the cell's scene seed of the last successful reset
 
     def _make_observation_space(self, frames: list[Frame]) -> spaces.Dict:
         entries: dict[str, spaces.Space] = {
@@ -185,8 +186,8 @@ class SegGraspEnv(gym.Env):
         self.prompt = prompt
         self._episode = Episode(self.cell, context, truth=truth)
         self._prompt_index = find_prompt(context.prompts, prompt)
-        info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt,
-                "scene_seed": cell_seed}
+        self.scene_seed = cell_seed
+        info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt}
         return self._observation(), info
 
     def _twin_subject(self, scene_seed: int, prompt: str | None) -> tuple[EpisodeContext, GroundTruth | None, str]:

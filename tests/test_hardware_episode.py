@@ -138,8 +138,8 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
     model = primitive_object("cylinder", (RADIUS, HEIGHT), tmp_path / "objects", mass=0.2, object_id="cylinder")
     env = SegGraspEnv([model], embodiment="floating", image_size=(160, 120))
     try:
-        _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
-        context = EpisodeContext.from_object(model, info["scene_seed"], prompts=model.labels.parts)
+        env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+        context = EpisodeContext.from_object(model, env.unwrapped.scene_seed, prompts=model.labels.parts)
         config = RunConfig(methods=["oracle"], objects=["cylinder"], top_k=1)
         truth = GroundTruth.of_object(model, context.prompts, true_pose=lambda: env.unwrapped.cell.object_mesh()[1])
         runner, stepped, reward = _runner_then_env(env, context, truth, config, tmp_path)
@@ -156,8 +156,8 @@ def test_one_slot_is_the_same_record_from_the_runner_the_gym_env_and_the_real_ba
         env = SegGraspEnv(backend="real", config=path, **fakes)
         try:
             server.object_register = env.cell.gripper.width_to_register(2 * RADIUS)
-            _, info = env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
-            context = EpisodeContext("cylinder", "real", ["side"], info["scene_seed"])
+            env.reset(seed=3, options={"object_id": "cylinder", "prompt": "side"})
+            context = EpisodeContext("cylinder", "real", ["side"], env.unwrapped.scene_seed)
             config = RunConfig(methods=["coarse"], objects=["cylinder"], top_k=1, backend="real", perceive=True)
             real, stepped, reward = _runner_then_env(env, context, None, config, tmp_path, WholeViewSpec())
         finally:
