@@ -7,6 +7,8 @@ repaired (duplicate vertices merged, zero-area faces dropped); `PreparedMesh` ke
 from __future__ import annotations
 
 import hashlib
+import io
+import logging
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +16,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
+
+logger = logging.getLogger(__name__)
 
 SUPPORTED_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 #: Bounding-box extents outside this range (metres) are rejected as absurd: most likely wrong units.
@@ -65,24 +69,58 @@ class PreparedMesh:
 def load_mesh(
     path: str | os.PathLike, min_extent: float = MIN_EXTENT_M, max_extent: float = MAX_EXTENT_M
 ) -> PreparedMesh:
-    """Load a mesh file (OBJ, PLY, OFF, STL, GLB/glTF) and validate and repair it; see `prepare_mesh`."""
+    """Load a mesh file (OBJ, PLY, OFF, STL, GLB/glTF) and validate and repair it; see `prepare_mesh`.
+
+    Text that is not UTF-8 (a Latin-1 byte in a comment) is read as Latin-1. A file that holds no mesh of its
+    format, or only points, is a ValueError naming the file and what was found.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"mesh file not found: {path}")
-    if path.suffix.lower() not in SUPPORTED_SUFFIXES:
+    suffix = path.suffix.lower()
+    if suffix not in SUPPORTED_SUFFIXES:
         raise ValueError(f"unsupported mesh format {path.suffix!r} for {path}; use one of {SUPPORTED_SUFFIXES}")
+    fmt = suffix[1:].upper()
+    if path.stat().st_size == 0:
+        raise ValueError(f"{path} is empty (0 bytes): not a readable {fmt} mesh")
     try:
-        loaded = trimesh.load(path, force="mesh", process=False, skip_materials=True)
+        source = _utf8_source(path, suffix)
+        scene = trimesh.load_scene(source, file_type=suffix[1:], process=False, skip_materials=True)
+        geometry = scene.dump()
     except Exception as exc:  # trimesh raises many types for corrupt files
-        raise ValueError(f"could not read mesh {path}: {type(exc).__name__}: {exc}") from exc
-    if not isinstance(loaded, trimesh.Trimesh):
-        raise ValueError(f"{path} holds no triangle mesh (got {type(loaded).__name__})")
+        raise ValueError(f"{path} is not a readable {fmt} mesh ({type(exc).__name__}: {exc})") from exc
+    meshes = [g for g in geometry if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+    if not meshes:
+        n_points = sum(len(getattr(g, "vertices", ())) for g in geometry)
+        if n_points:
+            raise ValueError(f"{path} has {n_points} vertices and no faces (a point cloud?): SegGrasp needs a "
+                             "triangle mesh")
+        raise ValueError(f"{path} is not a readable {fmt} mesh: no vertices or faces found in it")
+    loaded = scene.to_mesh()
     prepared = prepare_mesh(
         np.asarray(loaded.vertices), np.asarray(loaded.faces), min_extent=min_extent, max_extent=max_extent,
         name=str(path),
     )
     prepared.source_path = path
     return prepared
+
+
+def _utf8_source(path: Path, suffix: str) -> Path | io.BytesIO:
+    """`path`, or its bytes with non-UTF-8 text re-encoded from Latin-1 (trimesh would otherwise need an optional
+    charset detector). Text is the whole file for OBJ, OFF and ASCII STL, the header for PLY."""
+    if suffix not in (".obj", ".off", ".stl", ".ply"):
+        return path
+    raw = path.read_bytes()
+    if suffix == ".stl" and len(raw) >= 84 and len(raw) == 84 + 50 * int.from_bytes(raw[80:84], "little"):
+        return path  # binary STL
+    end = raw.find(b"end_header") if suffix == ".ply" else len(raw)
+    text = raw[: end if end >= 0 else len(raw)]
+    try:
+        text.decode("utf-8")
+        return path
+    except UnicodeDecodeError:
+        logger.info("%s is not UTF-8: reading its text as Latin-1", path)
+    return io.BytesIO(text.decode("latin-1").encode("utf-8") + raw[len(text):])
 
 
 def prepare_mesh(
