@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 import seggrasp.decompose as decompose
+import seggrasp.decompose.workers as workers
 from seggrasp.decompose import (
     COACD_DEFAULTS,
     PAPER_THRESHOLDS,
@@ -134,7 +135,7 @@ def known_hulls(vertices, faces, threshold, params):
 def test_sweep_selection_returns_the_distinct_partitions_of_a_mesh_with_known_hulls(monkeypatch, tmp_path):
     mesh, cube_of_face = four_boxes()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=known_hulls))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, None, real=known_hulls))
 
     def expected(threshold):
         group_of_cube = {cube: g for g, group in enumerate(groups_at(threshold)) for cube in group}
@@ -189,7 +190,7 @@ def logged_calls(log):
 def test_reference_mode_runs_the_literal_paper_sweep(monkeypatch, tmp_path):
     mesh = l_shape()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
     partitions = decompose_sweep(mesh, DecompositionConfig(mode="reference", seed=3), cache_dir=tmp_path)
     calls = logged_calls(log)
     assert [c[0] for c in calls] == [pytest.approx(0.01 * k) for k in range(1, 26)]  # all 25, serial, in order
@@ -206,10 +207,10 @@ def test_a_crashing_coacd_run_raises_instead_of_killing_the_interpreter(monkeypa
             os.abort()
         return [np.asarray(mesh.bounding_box.vertices)]
 
-    monkeypatch.setattr(decompose, "run_coacd_hulls", abort_on_simplified)
+    monkeypatch.setattr(workers, "run_coacd_hulls", abort_on_simplified)
     (partition,) = decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "a")
     assert partition.part_of_face.shape == (len(mesh.faces),)  # retried on the full mesh
-    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
     with pytest.raises(RuntimeError, match="crashed"):
         decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "b")
 
@@ -221,7 +222,7 @@ def test_cache_hit_on_second_call_and_miss_on_changed_parameter(monkeypatch, tmp
     assert all(p.part_of_face.shape == (len(mesh.faces),) for p in first)
 
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=decompose.run_coacd_hulls))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, None, real=decompose.run_coacd_hulls))
     stats = SweepStats()
     second = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1, stats=stats)
     assert logged_calls(log) == [] and sorted(stats.cached) == [0.05, 0.2]
@@ -274,7 +275,7 @@ def test_parallel_workers_give_the_serial_result(tmp_path):
 def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypatch, tmp_path):
     mesh = l_shape().subdivide().subdivide()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
     decompose_sweep(mesh, DecompositionConfig(seed=2), cache_dir=tmp_path, workers=2)
     calls = logged_calls(log)
     assert len(calls) <= decompose.FAST_MAX_RUNS
@@ -288,7 +289,7 @@ def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_man
     closed = l_shape().subdivide()
     opened = trimesh.Trimesh(closed.vertices, closed.faces[1:], process=False)  # one face missing: not closed
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
     config = DecompositionConfig(thresholds=(0.05,))
     assert config.coacd_params()["preprocess_mode"] == "off"
     decompose_sweep(closed, config, cache_dir=tmp_path / "closed", workers=1)
@@ -300,13 +301,22 @@ def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_man
 
 def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path, twin_knife):
     model = twin_knife
-    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
     stats = SweepStats()
     try:
         partitions = decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path, stats=stats)
     except RuntimeError:
-        pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m seggrasp.decompose --precompute-assets`")
+        pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m assets decompose`")
     assert stats.run_seconds == {} and len(stats.cached) >= 2
     assert partitions[0].part_of_face.shape == (len(model.mesh.faces),)
     with pytest.raises(RuntimeError, match="crashed"):  # bundled=False: a cold run (benchmarks) must run CoACD
         decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path / "cold", bundled=False)
+
+
+def test_assets_command_precomputes_the_bundled_sweeps(monkeypatch, capsys, twin_knife):
+    """`python -m assets decompose` fills assets/decompositions/; with the committed caches it runs no CoACD."""
+    from assets.__main__ import main as assets_main
+
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
+    assert assets_main(["decompose", "--only", "knife_chef"]) == 0
+    assert "knife_chef:" in capsys.readouterr().out
