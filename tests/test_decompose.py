@@ -2,6 +2,7 @@
 
 import json
 import os
+import time
 
 import numpy as np
 import pytest
@@ -320,3 +321,93 @@ def test_assets_command_precomputes_the_bundled_sweeps(monkeypatch, capsys, twin
     monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
     assert assets_main(["decompose", "--only", "knife_chef"]) == 0
     assert "knife_chef:" in capsys.readouterr().out
+
+
+def _bounding_box_coacd(log):
+    return recording_coacd(log, None, real=lambda v, f, t, p: [trimesh.Trimesh(v, f).bounding_box.vertices])
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
+def test_a_damaged_cache_entry_is_reported_discarded_and_recomputed(monkeypatch, tmp_path, caplog, damage):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05,), adaptive=False)
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
+    cache = tmp_path / "cache"
+    (first,) = decompose_sweep(mesh, config, cache_dir=cache, workers=1)
+    (entry,) = cache.glob("*.npz")
+    data = entry.read_bytes()
+    entry.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
+    with caplog.at_level("WARNING", logger="seggrasp.decompose"):
+        (again,) = decompose_sweep(mesh, config, cache_dir=cache, workers=1)
+    assert again.same_as(first)
+    assert len(logged_calls(log)) == 2  # recomputed
+    assert str(entry) in caplog.text and "discarded" in caplog.text
+    assert decompose_sweep(mesh, config, cache_dir=cache, workers=1)[0].same_as(first)  # the entry is whole again
+    assert len(logged_calls(log)) == 2
+
+
+def test_a_damaged_read_only_bundled_entry_is_skipped_and_left_alone(monkeypatch, tmp_path, caplog):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05,), adaptive=False)
+    bundled = tmp_path / "bundled"
+    bundled.mkdir()
+    entry = bundled / f"{config.run_key(decompose.mesh_hash(mesh), 0.05)}.npz"
+    entry.write_bytes(b"PK\x03\x04 truncated")
+    monkeypatch.setattr(decompose.sweep, "ASSET_CACHE_DIR", bundled)
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(tmp_path / "calls.jsonl"))
+    with caplog.at_level("WARNING", logger="seggrasp.decompose"):
+        (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path / "cache", workers=1)
+    assert partition.part_of_face.shape == (len(mesh.faces),)
+    assert str(entry) in caplog.text and "skipped" in caplog.text
+    assert entry.read_bytes() == b"PK\x03\x04 truncated"
+
+
+def _slow_at_fine_thresholds(vertices, faces, threshold, params):
+    if threshold < 0.1:
+        time.sleep(30)
+    return [trimesh.Trimesh(vertices, faces).bounding_box.vertices]
+
+
+def test_a_run_over_its_time_budget_is_killed_and_the_sweep_goes_on(monkeypatch, tmp_path, caplog):
+    mesh = l_shape()
+    monkeypatch.setattr(workers, "run_coacd_hulls", _slow_at_fine_thresholds)
+    config = DecompositionConfig(thresholds=(0.05, 0.2), adaptive=False, run_timeout=1.0)
+    stats = SweepStats()
+    started = time.monotonic()
+    with caplog.at_level("INFO", logger="seggrasp.decompose"):
+        partitions = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=2, stats=stats)
+    assert time.monotonic() - started < 15
+    assert [p.threshold for p in partitions] == [0.2] and stats.timed_out == [0.05]
+    assert "threshold 0.05 exceeded its time budget of 1 s" in caplog.text
+    assert "CoACD at threshold 0.20: 1 parts in" in caplog.text
+    assert len(list(tmp_path.glob("*.npz"))) == 1  # the killed run is not cached
+    with pytest.raises(decompose.SweepTimeout, match="--coacd-timeout"):
+        decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,), run_timeout=0.5), cache_dir=tmp_path)
+    with pytest.raises(ValueError, match="run_timeout"):
+        DecompositionConfig(run_timeout=0)
+
+
+def test_a_long_run_logs_a_heartbeat(monkeypatch, caplog):
+    mesh = l_shape()
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda v, f, t, p: time.sleep(1.2) or [mesh.bounding_box.vertices])
+    job = workers.Job(mesh.vertices, mesh.faces, mesh.triangles_center, 1.0, 0.05, {}, "error")
+    with caplog.at_level("INFO", logger="seggrasp.decompose"):
+        (outcome,) = workers.run_jobs([job], 1, timeout=None, heartbeat=0.3)
+    assert outcome.status == "ok"
+    assert "CoACD still running: threshold 0.05 for" in caplog.text
+
+
+def test_adaptive_selection_skips_thresholds_that_failed():
+    grid = PAPER_THRESHOLDS
+    tried = []
+
+    fine, coarse = canonical_parts(np.arange(8) // 2), np.zeros(8, dtype=np.int64)
+
+    def evaluate(thresholds):  # the partition changes between 0.12 and 0.14; the run at 0.13 fails
+        tried.extend(thresholds)
+        return {t: fine if t < 0.125 else coarse for t in thresholds if abs(t - 0.13) > 1e-9}
+
+    found = select_thresholds(grid, evaluate)
+    assert len(tried) == len(set(tried))  # nothing is tried twice
+    assert 0.13 not in found and 0.14 in found and 0.12 in found
