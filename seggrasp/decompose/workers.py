@@ -139,6 +139,8 @@ def _die_with_parent(parent: int) -> None:
 
 def _job_process(conn, job: Job, parent: int) -> None:
     _die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent cleans up
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
     faulthandler.disable()  # a CoACD abort is reported by the parent; no interpreter dump from the child
     conn.send(decompose_once(job))
     conn.close()
