@@ -411,3 +411,26 @@ def test_adaptive_selection_skips_thresholds_that_failed():
     found = select_thresholds(grid, evaluate)
     assert len(tried) == len(set(tried))  # nothing is tried twice
     assert 0.13 not in found and 0.14 in found and 0.12 in found
+
+
+def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monkeypatch, tmp_path):
+    mesh = l_shape().subdivide().subdivide()  # ~2.4k faces; the limit is lowered to 500 for the test
+    monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", 500)
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
+    config = DecompositionConfig(thresholds=(0.05,), simplify_tolerance=0.0)  # no manifold3d simplification
+    (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
+    ((threshold, params, n_faces, _),) = logged_calls(log)
+    assert 250 <= n_faces <= 500 < len(mesh.faces)
+    assert params["preprocess_mode"] == "auto"  # a decimated mesh is not a verified closed manifold
+    assert partition.part_of_face.shape == (len(mesh.faces),)
+
+
+def test_face_mapping_in_chunks_equals_one_block(monkeypatch):
+    mesh, truth = two_box_mesh()
+    hulls = [box([0.1, 0.1, 0.1], [0, 0, 0]).vertices, box([0.1, 0.1, 0.01], [0, 0, 0.075]).vertices,
+             np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.1, 0.1, 0.0]])]  # a flat one too
+    scale = float(np.linalg.norm(mesh.extents))
+    whole = map_faces_to_hulls(mesh.triangles_center, hulls, scale)
+    monkeypatch.setattr(decompose.mapping, "MAP_CHUNK", 7)
+    np.testing.assert_array_equal(map_faces_to_hulls(mesh.triangles_center, hulls, scale), whole)
