@@ -413,8 +413,12 @@ def test_adaptive_selection_skips_thresholds_that_failed():
     assert 0.13 not in found and 0.14 in found and 0.12 in found
 
 
-def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monkeypatch, tmp_path):
+@pytest.mark.parametrize("closed", [True, False])
+def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monkeypatch, tmp_path, closed):
     mesh = l_shape().subdivide().subdivide()  # ~2.4k faces; the limit is lowered to 500 for the test
+    if not closed:  # the top cap of the upright arm removed: an open mesh
+        mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[mesh.triangles_center[:, 2] < mesh.bounds[1, 2] - 1e-6],
+                               process=False)
     monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", 500)
     log = tmp_path / "calls.jsonl"
     monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
@@ -422,7 +426,8 @@ def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monk
     (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
     ((threshold, params, n_faces, _),) = logged_calls(log)
     assert 250 <= n_faces <= 500 < len(mesh.faces)
-    assert params["preprocess_mode"] == "auto"  # a decimated mesh is not a verified closed manifold
+    # CoACD skips its preprocessing only when manifold3d verified the decimated mesh as closed.
+    assert params["preprocess_mode"] == ("off" if closed else "auto")
     assert partition.part_of_face.shape == (len(mesh.faces),)
 
 

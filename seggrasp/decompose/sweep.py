@@ -117,12 +117,16 @@ class _Sweep:
         return found
 
     def _working_mesh(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """CoACD's input: the simplified mesh, decimated to MAX_COACD_FACES when larger; whether it is a verified
-        closed manifold."""
+        """CoACD's input: the simplified mesh, decimated to MAX_COACD_FACES when larger; whether manifold3d verified
+        it as a closed manifold (then CoACD may skip its own preprocessing)."""
         if self.working is None:
+            started = time.perf_counter()
             vertices, faces, closed = runner.simplify(self.mesh, self.config.effective_simplify_tolerance)
-            vertices, faces, decimated = runner.limit_faces(vertices, faces, MAX_COACD_FACES)
-            self.working = (vertices, faces, closed and not decimated)
+            if len(faces) > MAX_COACD_FACES:
+                vertices, faces, closed = runner.limit_faces(vertices, faces, MAX_COACD_FACES)
+            self.working = (vertices, faces, closed)
+            logger.info("decomposition: %d-face working mesh from %d faces in %.1f s", len(faces), self.n_faces,
+                        time.perf_counter() - started)
         return self.working
 
     def _run(self, thresholds: list[float]) -> list[runner.RunOutcome]:

@@ -50,6 +50,26 @@ def run_coacd_hulls(vertices: np.ndarray, faces: np.ndarray, threshold: float, p
     return [np.asarray(hull_vertices, dtype=np.float64) for hull_vertices, _ in result]
 
 
+def _solid(vertices: np.ndarray, faces: np.ndarray):
+    """The manifold3d solid of a mesh (check `.status()`: NoError = a closed manifold)."""
+    import manifold3d
+
+    # Fresh writable C-ordered copies: manifold3d refuses read-only views.
+    return manifold3d.Manifold(manifold3d.Mesh64(np.array(vertices, dtype=np.float64, order="C"),
+                                                 np.array(faces, dtype=np.uint64, order="C")))
+
+
+def _is_closed(solid) -> bool:
+    import manifold3d
+
+    return solid.status() == manifold3d.Error.NoError and not solid.is_empty()
+
+
+def is_closed_manifold(vertices: np.ndarray, faces: np.ndarray) -> bool:
+    """Whether manifold3d accepts the mesh as a closed manifold."""
+    return _is_closed(_solid(vertices, faces))
+
+
 def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.ndarray, bool]:
     """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal, and
     whether the result is a closed manifold verified by manifold3d.
@@ -58,15 +78,12 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.nd
     gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and
     unverified (False: CoACD then needs its own preprocessing).
     """
-    # Fresh writable C-ordered copies: manifold3d refuses read-only views.
     vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
     faces = np.array(mesh.faces, dtype=np.int64, order="C")
     if tolerance <= 0:
         return vertices, faces, False
-    import manifold3d
-
-    solid = manifold3d.Manifold(manifold3d.Mesh64(vertices, faces.astype(np.uint64)))
-    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+    solid = _solid(vertices, faces)
+    if not _is_closed(solid):
         logger.info("mesh is not a closed manifold (%s): decomposing it without simplification", solid.status())
         return vertices, faces, False
     simplified = solid.simplify(tolerance * float(np.linalg.norm(mesh.extents))).to_mesh64()
@@ -75,8 +92,9 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.nd
 
 
 def limit_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(vertices, faces, decimated): the mesh quadric-decimated (fast-simplification) to at most about `max_faces`
-    faces when it has more, else unchanged."""
+    """(vertices, faces, closed): the mesh quadric-decimated (fast-simplification) to at most about `max_faces`
+    faces when it has more, and whether manifold3d verifies the result as a closed manifold; unchanged (and
+    unverified) when it is small enough."""
     if len(faces) <= max_faces:
         return vertices, faces, False
     import fast_simplification
@@ -84,9 +102,11 @@ def limit_faces(vertices: np.ndarray, faces: np.ndarray, max_faces: int) -> tupl
     reduction = 1.0 - max_faces / len(faces)
     points, triangles = fast_simplification.simplify(np.ascontiguousarray(vertices, np.float32),
                                                      np.ascontiguousarray(faces, np.int32), reduction)
-    logger.info("decomposing a %d-face decimation of the %d-face working mesh (CoACD limit %d faces)",
-                len(triangles), len(faces), max_faces)
-    return np.asarray(points, np.float64), np.asarray(triangles, np.int64), True
+    points, triangles = np.asarray(points, np.float64), np.asarray(triangles, np.int64)
+    closed = is_closed_manifold(points, triangles)
+    logger.info("decomposing a %d-face decimation (%s) of the %d-face working mesh (CoACD limit %d faces)",
+                len(triangles), "a closed manifold" if closed else "not closed", len(faces), max_faces)
+    return points, triangles, closed
 
 
 def params_for(params: dict, closed_manifold: bool) -> dict:
@@ -175,11 +195,12 @@ def run_jobs(jobs: list[Job], workers: int, timeout: float | None = None,
                 outcome = _collect(running, index, jobs[index].threshold, ready, timeout)
                 if outcome is not None:
                     outcomes[index] = outcome
-            if running and time.monotonic() - last_beat >= heartbeat:
+            if time.monotonic() - last_beat >= heartbeat:
                 last_beat = time.monotonic()
-                logger.info("CoACD still running: %s", ", ".join(
-                    f"threshold {jobs[i].threshold:.2f} for {last_beat - started:.0f} s"
-                    for i, (_, _, started) in sorted(running.items())))
+                long_runs = [f"threshold {jobs[i].threshold:.2f} for {last_beat - started:.0f} s"
+                             for i, (_, _, started) in sorted(running.items()) if last_beat - started >= heartbeat]
+                if long_runs:
+                    logger.info("CoACD still running: %s", ", ".join(long_runs))
     finally:
         for process, receive, _ in running.values():  # left early (exception, interrupt): no orphans
             process.kill()
