@@ -439,3 +439,15 @@ def test_face_mapping_in_chunks_equals_one_block(monkeypatch):
     whole = map_faces_to_hulls(mesh.triangles_center, hulls, scale)
     monkeypatch.setattr(decompose.mapping, "MAP_CHUNK", 7)
     np.testing.assert_array_equal(map_faces_to_hulls(mesh.triangles_center, hulls, scale), whole)
+
+
+def test_the_face_limit_is_in_the_cache_key_only_of_meshes_above_it(monkeypatch, tmp_path):
+    mesh = l_shape().subdivide()
+    config = DecompositionConfig(thresholds=(0.05,))
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(tmp_path / "calls.jsonl"))
+    decompose_sweep(mesh, config, cache_dir=tmp_path / "small", workers=1)
+    assert (tmp_path / "small" / f"{config.run_key(decompose.mesh_hash(mesh), 0.05)}.npz").is_file()
+    monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", len(mesh.faces) - 1)
+    decompose_sweep(mesh, config, cache_dir=tmp_path / "big", workers=1)
+    key = config.run_key(decompose.mesh_hash(mesh), 0.05, face_limit=len(mesh.faces) - 1)
+    assert [p.name for p in (tmp_path / "big").glob("*.npz")] == [f"{key}.npz"]

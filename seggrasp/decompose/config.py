@@ -69,9 +69,9 @@ FAST_ANCHORS = (0.02, 0.04, 0.08, 0.25)
 FAST_MAX_RUNS = 5
 #: Time budget of one CoACD run (seconds) by mode: a run that exceeds it is killed and the sweep goes on without it.
 RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
-#: CoACD never sees more faces than this: a larger working mesh is decimated to it first (bounded time and memory;
-#: on a 100k-face working mesh one fast-mode run took over a minute).
-MAX_COACD_FACES = 20_000
+#: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
+#: (bounded time and memory: one fast-mode run on a 20k-face working mesh took over a minute).
+MAX_COACD_FACES = 10_000
 
 
 @dataclass(frozen=True)
@@ -155,8 +155,9 @@ class DecompositionConfig:
     def effective_adaptive(self) -> bool:
         return self.mode == "fast" if self.adaptive is None else bool(self.adaptive)
 
-    def run_key(self, mesh_digest: str, threshold: float) -> str:
-        """Cache key of one CoACD run at `threshold` on a mesh with geometry hash `mesh_digest`."""
+    def run_key(self, mesh_digest: str, threshold: float, face_limit: int | None = None) -> str:
+        """Cache key of one CoACD run at `threshold` on a mesh with geometry hash `mesh_digest`; `face_limit` is the
+        CoACD face limit when the mesh has more faces than it (it then shapes the working mesh)."""
         payload = {
             "mesh": mesh_digest,
             "threshold": round(float(threshold), 6),
@@ -165,4 +166,6 @@ class DecompositionConfig:
             "simplify_tolerance": self.effective_simplify_tolerance,
             "mapping": MAPPING_VERSION,
         }
+        if face_limit is not None:
+            payload["face_limit"] = int(face_limit)
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]

@@ -92,6 +92,7 @@ class _Sweep:
         self.centroids = np.asarray(mesh.triangles_center, dtype=np.float64)
         self.scale = float(np.linalg.norm(mesh.extents))
         self.params = config.coacd_params()
+        self.face_limit = MAX_COACD_FACES if self.n_faces > MAX_COACD_FACES else None
         self.working: tuple[np.ndarray, np.ndarray, bool] | None = None
 
     def evaluate(self, thresholds: list[float]) -> dict[float, np.ndarray]:
@@ -99,7 +100,7 @@ class _Sweep:
         found: dict[float, np.ndarray] = {}
         missing = []
         for threshold in thresholds:
-            parts = load_cached(self.config.run_key(self.digest, threshold), self.n_faces, self.writable, self.search)
+            parts = load_cached(self._key(threshold), self.n_faces, self.writable, self.search)
             if parts is None:
                 missing.append(threshold)
             else:
@@ -111,17 +112,21 @@ class _Sweep:
                 continue
             found[outcome.threshold] = outcome.part_of_face
             self.stats.run_seconds[outcome.threshold] = outcome.seconds
-            save_cached(self.writable, self.config.run_key(self.digest, outcome.threshold), outcome.part_of_face,
+            save_cached(self.writable, self._key(outcome.threshold), outcome.part_of_face,
                         outcome.threshold)
         self.stats.evaluated.extend(thresholds)
         return found
 
+    def _key(self, threshold: float) -> str:
+        return self.config.run_key(self.digest, threshold, self.face_limit)
+
     def _working_mesh(self) -> tuple[np.ndarray, np.ndarray, bool]:
-        """CoACD's input: the simplified mesh, decimated to MAX_COACD_FACES when larger; whether manifold3d verified
-        it as a closed manifold (then CoACD may skip its own preprocessing)."""
+        """CoACD's input: the simplified mesh (coarser when over MAX_COACD_FACES), decimated to MAX_COACD_FACES when
+        still larger; whether manifold3d verified it as a closed manifold (then CoACD skips its preprocessing)."""
         if self.working is None:
             started = time.perf_counter()
-            vertices, faces, closed = runner.simplify(self.mesh, self.config.effective_simplify_tolerance)
+            vertices, faces, closed = runner.simplify(self.mesh, self.config.effective_simplify_tolerance,
+                                                      MAX_COACD_FACES)
             if len(faces) > MAX_COACD_FACES:
                 vertices, faces, closed = runner.limit_faces(vertices, faces, MAX_COACD_FACES)
             self.working = (vertices, faces, closed)

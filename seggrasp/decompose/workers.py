@@ -28,6 +28,8 @@ from seggrasp.decompose.mapping import canonical_parts, map_faces_to_hulls
 
 logger = logging.getLogger(__name__)
 
+#: Simplification of a mesh over the CoACD face limit may coarsen up to this fraction of its diagonal.
+MAX_SIMPLIFY_TOLERANCE = 0.008
 #: A CoACD run that takes longer than this logs "still running" at this interval (seconds).
 HEARTBEAT_S = 10.0
 _PR_SET_PDEATHSIG = 1
@@ -70,13 +72,15 @@ def is_closed_manifold(vertices: np.ndarray, faces: np.ndarray) -> bool:
     return _is_closed(_solid(vertices, faces))
 
 
-def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.ndarray, bool]:
+def simplify(mesh: trimesh.Trimesh, tolerance: float, max_faces: int | None = None
+             ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal, and
     whether the result is a closed manifold verified by manifold3d.
 
     manifold3d's edge collapses keep a closed manifold closed, so CoACD (which aborts on some non-manifold input)
-    gets a valid mesh. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and
-    unverified (False: CoACD then needs its own preprocessing).
+    gets a valid mesh. With `max_faces`, the tolerance is doubled (up to MAX_SIMPLIFY_TOLERANCE) while the result has
+    more faces. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and unverified
+    (False: CoACD then needs its own preprocessing).
     """
     vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
     faces = np.array(mesh.faces, dtype=np.int64, order="C")
@@ -86,7 +90,12 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float) -> tuple[np.ndarray, np.nd
     if not _is_closed(solid):
         logger.info("mesh is not a closed manifold (%s): decomposing it without simplification", solid.status())
         return vertices, faces, False
-    simplified = solid.simplify(tolerance * float(np.linalg.norm(mesh.extents))).to_mesh64()
+    diagonal = float(np.linalg.norm(mesh.extents))
+    solid = solid.simplify(tolerance * diagonal)
+    while max_faces is not None and solid.num_tri() > max_faces and tolerance < MAX_SIMPLIFY_TOLERANCE:
+        tolerance = min(2.0 * tolerance, MAX_SIMPLIFY_TOLERANCE)
+        solid = solid.simplify(tolerance * diagonal)
+    simplified = solid.to_mesh64()
     return (np.asarray(simplified.vert_properties[:, :3], dtype=np.float64),
             np.asarray(simplified.tri_verts, np.int64), True)
 
