@@ -5,6 +5,7 @@
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
     python bench/bench_seg.py --meshes twin --quality      # mIoU per refinement mode over the twin, seeds 0-2
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
+    python bench/bench_seg.py --meshes ycb,big --big-faces 30000,300000 --seeds 1 --no-warm  # real and dense meshes
 
 Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
 are computed once per mesh and detector seed (0..--seeds-1), so every mode sees the same views, boxes and seeds;
@@ -45,14 +46,19 @@ from seggrasp.render import camera_rig, render_views  # noqa: E402
 from seggrasp.vote import labels_from_scores, vote  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
+#: The shared YCB scans (not part of the repository).
+YCB_DIR = Path(__file__).resolve().parents[2] / "shared" / "data" / "ycb"
 
 
 @dataclass
 class LabelledMesh:
+    """A benchmark mesh; `labelled=False`: its labels are one whole-object part (times only, no mIoU)."""
+
     name: str
     category: str
     mesh: trimesh.Trimesh
     labels: PartLabels
+    labelled: bool = True
 
 
 # ------------------------------------------------------------------------------------------------- datasets
@@ -105,6 +111,20 @@ def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
             vertices, faces = read_obj_arrays(folder / "mesh.obj")[0]
             found.append(LabelledMesh(folder.name, folder.name.split("_")[0],
                                       trimesh.Trimesh(vertices, faces, process=False), read_labels(folder / "labels.json")))
+    return found
+
+
+def ycb_meshes(ycb_dir: Path = YCB_DIR) -> list[LabelledMesh]:
+    """The real YCB scans in `ycb_dir` (<id>/textured.obj, open, about 16k faces). They carry no part labels: each
+    is one whole-object part, so they time the pipeline (the simulated detector boxes the whole object) but give no
+    mIoU."""
+    from seggrasp.mesh import load_mesh
+
+    found = []
+    for path in sorted(Path(ycb_dir).glob("*/textured.obj")):
+        mesh = load_mesh(path).mesh
+        found.append(LabelledMesh(f"ycb_{path.parent.name}", "ycb", mesh,
+                                  PartLabels(["object"], np.zeros(len(mesh.faces), dtype=np.int64)), labelled=False))
     return found
 
 
@@ -232,6 +252,7 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
         times["total_without_detector"] = sum(v for k, v in times.items() if k != "detect")
         records.append({
             "mesh": item.name, "category": item.category, "faces": int(len(item.mesh.faces)), "mode": mode,
+            "labelled": item.labelled,
             "mesh_hash": mesh_hash(item.mesh),
             "preset": args.preset, "seed": args.seed, "detector_seeds": seeds, "times": times, "peak_rss_mb": peak_mb,
             "coacd_seconds": {f"{t:.2f}": s for t, s in sorted(stats.run_seconds.items())},
@@ -245,19 +266,21 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
 
 
 def print_table(records: list[dict], modes: list[str]) -> None:
-    print(f"\n{'mesh':24s} {'faces':>6s} {'mode':9s} {'render':>7s} {'vote':>6s} {'decomp':>8s} {'fusion':>7s} "
+    print(f"\n{'mesh':24s} {'faces':>7s} {'mode':9s} {'render':>7s} {'vote':>6s} {'decomp':>8s} {'fusion':>7s} "
           f"{'total':>8s} {'peakMB':>7s} {'runs':>4s} {'parts':>5s} {'coarse':>7s} {'full':>6s} {'multi':>6s} "
           f"{'opt':>6s} {'spread':>6s} {'warm':>6s}")
     for r in records:
         t, m = r["times"], r["miou"]
         warm = f"{r['warm']['times']['total_without_detector']:6.2f}" if r.get("warm") else "     -"
-        print(f"{r['mesh']:24s} {r['faces']:6d} {r['mode']:9s} {t['render']:7.2f} {t['vote']:6.2f} "
+        quality = (f"{m['none']:7.3f} {m['full']:6.3f} {m['multi']:6.3f} {m['opt']:6.3f} {m['spread']:6.3f}"
+                   if r.get("labelled", True) else f"{'-':>7s} {'-':>6s} {'-':>6s} {'-':>6s} {'-':>6s}")
+        print(f"{r['mesh']:24s} {r['faces']:7d} {r['mode']:9s} {t['render']:7.2f} {t['vote']:6.2f} "
               f"{t['decompose']:8.1f} {t['fusion']:7.3f} {t['total_without_detector']:8.1f} {r['peak_rss_mb']:7.0f} "
-              f"{len(r['coacd_seconds']):4d} {len(r['distinct_partitions']):5d} {m['none']:7.3f} {m['full']:6.3f} "
-              f"{m['multi']:6.3f} {m['opt']:6.3f} {m['spread']:6.3f} {warm}")
+              f"{len(r['coacd_seconds']):4d} {len(r['distinct_partitions']):5d} {quality} {warm}")
     by_mode = {mode: [r for r in records if r["mode"] == mode] for mode in modes}
     print()
-    for mode, rows in by_mode.items():
+    for mode, all_rows in by_mode.items():
+        rows = [r for r in all_rows if r.get("labelled", True)]
         if not rows:
             continue
         summary = mean_over_categories([(r["category"], r["miou"]["full"]) for r in rows])
@@ -372,15 +395,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
-                        help="comma list of: twin, primitives, big (a twin object subdivided to --big-faces faces), "
-                             "or mesh names")
+                        help="comma list of: twin, primitives, big (a twin object subdivided to each of --big-faces), "
+                             "ycb (the real YCB scans in ../shared/data/ycb: times only, no labels), or mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--image-size", type=int, default=512)
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--big-from", default="knife_chef", help="twin object to subdivide for --meshes big")
-    parser.add_argument("--big-faces", type=int, default=30000, help="face count of the --meshes big mesh")
+    parser.add_argument("--big-faces", default="30000",
+                        help="face counts of the --meshes big meshes, comma list (e.g. 30000,300000)")
     parser.add_argument("--twin-dir", type=Path, help="read twin objects from <dir>/<id>/{mesh.obj,labels.json}")
     parser.add_argument("--normalisation", default=None, choices=NORMALISATIONS)
     parser.add_argument("--no-warm", dest="warm", action="store_false", help="skip the warm-cache run")
@@ -407,8 +431,12 @@ def main(argv: list[str] | None = None) -> int:
         source = next((t for t in twin if t.name == args.big_from), None)
         if source is None:
             parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
-        items.append(subdivided(source, args.big_faces))
-    named = [w for w in wanted if w not in ("twin", "primitives", "big")]
+        items += [subdivided(source, int(n)) for n in args.big_faces.split(",")]
+    if "ycb" in wanted:
+        if not YCB_DIR.is_dir():
+            parser.error(f"--meshes ycb: no YCB scans at {YCB_DIR}")
+        items += ycb_meshes()
+    named = [w for w in wanted if w not in ("twin", "primitives", "big", "ycb")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:
         if name not in pool:
