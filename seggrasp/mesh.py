@@ -136,36 +136,7 @@ def prepare_mesh(
     out of range, a mesh whose faces are all degenerate, or a bounding box outside [min_extent, max_extent] metres.
     Repairs: merges duplicate vertices and drops zero-area faces (keeping the map to the input face order).
     """
-    vertices = np.asarray(vertices, dtype=np.float64)
-    faces = np.asarray(faces)
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
-        raise ValueError(f"{name}: empty mesh or malformed vertices (shape {vertices.shape}); need (N, 3) with N > 0")
-    if faces.ndim != 2 or len(faces) == 0:
-        raise ValueError(f"{name}: empty mesh: no faces (faces shape {faces.shape})")
-    if faces.shape[1] != 3:
-        raise ValueError(f"{name}: faces must be triangles, got {faces.shape[1]} indices per face")
-    if not np.issubdtype(faces.dtype, np.integer):
-        raise ValueError(f"{name}: face indices must be integers, got {faces.dtype}")
-    bad_vertices = ~np.isfinite(vertices).all(axis=1)
-    if bad_vertices.any():
-        raise ValueError(
-            f"{name}: {int(bad_vertices.sum())} vertices have NaN or infinite coordinates "
-            f"(first: vertex {int(np.flatnonzero(bad_vertices)[0])})"
-        )
-    out_of_range = (faces < 0) | (faces >= len(vertices))
-    if out_of_range.any():
-        row = int(np.flatnonzero(out_of_range.any(axis=1))[0])
-        raise ValueError(
-            f"{name}: {int(out_of_range.any(axis=1).sum())} faces index vertices outside 0..{len(vertices) - 1} "
-            f"(first: face {row} = {faces[row].tolist()})"
-        )
-    faces = faces.astype(np.int64)
-    extent = float(np.ptp(vertices[np.unique(faces)], axis=0).max())
-    if not (min_extent <= extent <= max_extent):
-        raise ValueError(
-            f"{name}: absurd size: largest bounding-box side is {extent:.6g} m, outside [{min_extent}, {max_extent}] m. "
-            "Meshes must be in metres (a scan in millimetres needs scaling by 0.001)."
-        )
+    vertices, faces = _checked_arrays(vertices, faces, min_extent, max_extent, name)
 
     # Merge duplicate vertices first (keeps face order), then drop faces that are degenerate afterwards: a sliver
     # whose corners merge becomes a face with a repeated vertex.
@@ -196,6 +167,42 @@ def prepare_mesh(
         _, nearest = cKDTree(centroids[kept]).query(centroids[dropped])
         source_to_work[dropped] = nearest
     return PreparedMesh(mesh=mesh, source_face=kept, source_to_work=source_to_work, dropped_faces=dropped)
+
+
+def _checked_arrays(vertices: np.ndarray, faces: np.ndarray, min_extent: float, max_extent: float,
+                    name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Float64 vertices and int64 faces after the checks of `prepare_mesh` (ValueError naming the first problem)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
+        raise ValueError(f"{name}: empty mesh or malformed vertices (shape {vertices.shape}); need (N, 3) with N > 0")
+    if faces.ndim != 2 or len(faces) == 0:
+        raise ValueError(f"{name}: empty mesh: no faces (faces shape {faces.shape})")
+    if faces.shape[1] != 3:
+        raise ValueError(f"{name}: faces must be triangles, got {faces.shape[1]} indices per face")
+    if not np.issubdtype(faces.dtype, np.integer):
+        raise ValueError(f"{name}: face indices must be integers, got {faces.dtype}")
+    bad_vertices = ~np.isfinite(vertices).all(axis=1)
+    if bad_vertices.any():
+        raise ValueError(
+            f"{name}: {int(bad_vertices.sum())} vertices have NaN or infinite coordinates "
+            f"(first: vertex {int(np.flatnonzero(bad_vertices)[0])})"
+        )
+    out_of_range = (faces < 0) | (faces >= len(vertices))
+    if out_of_range.any():
+        row = int(np.flatnonzero(out_of_range.any(axis=1))[0])
+        raise ValueError(
+            f"{name}: {int(out_of_range.any(axis=1).sum())} faces index vertices outside 0..{len(vertices) - 1} "
+            f"(first: face {row} = {faces[row].tolist()})"
+        )
+    faces = faces.astype(np.int64)
+    extent = float(np.ptp(vertices[np.unique(faces)], axis=0).max())
+    if not (min_extent <= extent <= max_extent):
+        raise ValueError(
+            f"{name}: absurd size: largest bounding-box side is {extent:.6g} m, outside [{min_extent}, {max_extent}] m. "
+            "Meshes must be in metres (a scan in millimetres needs scaling by 0.001)."
+        )
+    return vertices, faces
 
 
 def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
