@@ -116,11 +116,14 @@ def run_segment(args: argparse.Namespace) -> dict:
 
     prompts = check_prompts(args.prompts)
     check_output_folder(args.out)
+    log = logging.getLogger("seggrasp.cli")  # __name__ is "__main__" under python -m
+    if args.mesh.is_file():
+        log.info("loading %s (%.1f MB)", args.mesh, args.mesh.stat().st_size / 1e6)
     prepared = load_mesh(args.mesh)
     if prepared.n_source_faces > MAX_SEGMENT_FACES:
         raise ValueError(f"{args.mesh} has {prepared.n_source_faces:,} faces; segment takes at most "
                          f"{MAX_SEGMENT_FACES:,}: decimate it first")
-    logging.getLogger(__name__).info("loaded %s: %d faces", args.mesh, prepared.n_source_faces)
+    log.info("loaded %s: %d faces", args.mesh, prepared.n_source_faces)
     ground_truth = _read_ground_truth(args.labels, prepared, prompts) if args.labels else None
     working_truth = (
         PartLabels(ground_truth.parts, prepared.from_source(ground_truth.face_labels)) if ground_truth else None
