@@ -67,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("--cache-dir", type=Path, help="decomposition cache folder (default: the user cache)")
     seg.add_argument("--workers", type=int, help="parallel CoACD processes (default: decided by the sweep)")
     seg.add_argument("--coacd-timeout", type=float, metavar="SECONDS",
-                     help=f"time budget of one CoACD run of the sweep (default {RUN_TIMEOUT_S['fast']:.0f} s fast, "
+                     help=f"time budget of one CoACD run of the sweep in CPU seconds (default {RUN_TIMEOUT_S['fast']:.0f} s fast, "
                           f"{RUN_TIMEOUT_S['reference']:.0f} s reference); a run over it is dropped with a warning")
     seg.add_argument("--seed", type=int, default=0, help="seed of the camera rig, detector and decomposition")
     seg.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")

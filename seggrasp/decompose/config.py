@@ -67,7 +67,8 @@ FAST_ANCHORS = (0.02, 0.04, 0.08, 0.25)
 #: or with only the two grid ends, against 0.4908 for all 25 thresholds. 5 runs instead of 6 save 17 % of the mug's
 #: CoACD time (19.7 vs 23.7 CPU s) at the same mug mIoU.
 FAST_MAX_RUNS = 5
-#: Time budget of one CoACD run (seconds) by mode: a run that exceeds it is killed and the sweep goes on without it.
+#: Time budget of one CoACD run (CPU seconds) by mode: a run that exceeds it is killed and the sweep goes on
+#: without it.
 RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
 #: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
 #: (bounded time and memory: one fast-mode run on a 20k-face working mesh took over a minute).
@@ -82,7 +83,7 @@ class DecompositionConfig:
     `coacd` overrides individual CoACD keyword arguments (keys as in `coacd.run_coacd`), on top of the mode's.
     `simplify_tolerance` simplifies the mesh before CoACD within that fraction of its diagonal (0 = never).
     `adaptive` runs only the thresholds needed to find every distinct partition of the grid (see the package
-    docstring). `run_timeout` is the time budget of one CoACD run in seconds (None: RUN_TIMEOUT_S of the mode).
+    docstring). `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
     """
 
     mode: str = "fast"

@@ -190,7 +190,7 @@ def decompose_sweep(
         evaluated = sweep.evaluate(list(config.thresholds))
     if not evaluated:
         raise SweepTimeout(
-            f"every CoACD run exceeded its time budget of {config.effective_run_timeout:.0f} s (thresholds "
+            f"every CoACD run exceeded its time budget of {config.effective_run_timeout:.0f} CPU s (thresholds "
             f"{sorted(stats.timed_out)}); give a larger budget (--coacd-timeout) or skip refinement (--refine none)")
     partitions = dedupe_partitions([Partition(t, parts) for t, parts in evaluated.items()])
     logger.info("decomposition sweep: %d distinct partitions from %d runs (%d cached, %d over budget) in %.1f s",

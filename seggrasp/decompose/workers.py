@@ -18,6 +18,7 @@ import signal
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -32,6 +33,8 @@ logger = logging.getLogger(__name__)
 MAX_SIMPLIFY_TOLERANCE = 0.008
 #: A CoACD run that takes longer than this logs "still running" at this interval (seconds).
 HEARTBEAT_S = 10.0
+#: How often (seconds) the CPU time of running CoACD processes is compared with the budget.
+BUDGET_POLL_S = 0.5
 _PR_SET_PDEATHSIG = 1
 
 
@@ -177,9 +180,11 @@ def _job_process(conn, job: Job, parent: int) -> None:
 
 def run_jobs(jobs: list[Job], workers: int, timeout: float | None = None,
              heartbeat: float = HEARTBEAT_S) -> list[RunOutcome]:
-    """Run every job in its own child process, at most `workers` at a time, each within `timeout` seconds.
+    """Run every job in its own child process, at most `workers` at a time, each within `timeout` CPU seconds.
 
-    A run whose process dies is "crashed"; one that exceeds `timeout` is killed and "timeout". Every finished run
+    A run whose process dies is "crashed"; one that uses more than `timeout` seconds of CPU is killed and "timeout"
+    (CPU time rather than wall-clock time, so that a run's fate does not depend on how busy the machine is; where
+    /proc is missing, wall-clock time). Every finished run
     is logged with its threshold and time, and runs that take long log a heartbeat every `heartbeat` seconds.
     """
     context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else "spawn")
@@ -196,9 +201,7 @@ def run_jobs(jobs: list[Job], workers: int, timeout: float | None = None,
                 process.start()
                 send.close()
                 running[index] = (process, receive, time.monotonic())
-            now = time.monotonic()
-            deadlines = [started + timeout - now for _, _, started in running.values()] if timeout else []
-            wait = max(0.05, min([heartbeat - (now - last_beat)] + deadlines))
+            wait = max(0.05, min(heartbeat - (time.monotonic() - last_beat), BUDGET_POLL_S if timeout else heartbeat))
             ready = multiprocessing.connection.wait([receive for _, receive, _ in running.values()], timeout=wait)
             for index in list(running):
                 outcome = _collect(running, index, jobs[index].threshold, ready, timeout)
@@ -218,6 +221,15 @@ def run_jobs(jobs: list[Job], workers: int, timeout: float | None = None,
     return outcomes  # type: ignore[return-value]
 
 
+def cpu_seconds(pid: int, fallback: float) -> float:
+    """CPU seconds (user + system) process `pid` has used (Linux /proc), else `fallback`."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return fallback
+
+
 def _collect(running: dict, index: int, threshold: float, ready: list, timeout: float | None) -> RunOutcome | None:
     """The outcome of running job `index` if it finished (or ran out of time), removing it from `running`."""
     process, receive, started = running[index]
@@ -229,10 +241,10 @@ def _collect(running: dict, index: int, threshold: float, ready: list, timeout: 
                         elapsed)
         except EOFError:  # the child died (CoACD abort) before sending
             outcome = RunOutcome(threshold, "crashed", elapsed)
-    elif timeout is not None and elapsed > timeout:
+    elif timeout is not None and cpu_seconds(process.pid, elapsed) > timeout:
         process.kill()
         outcome = RunOutcome(threshold, "timeout", elapsed)
-        logger.warning("CoACD at threshold %.2f exceeded its time budget of %.0f s: killed; the sweep goes on "
+        logger.warning("CoACD at threshold %.2f exceeded its time budget of %.0f CPU s: killed; the sweep goes on "
                        "without it", threshold, timeout)
     else:
         return None
