@@ -184,8 +184,8 @@ def run_jobs(jobs: list[Job], workers: int, timeout: float | None = None,
 
     A run whose process dies is "crashed"; one that uses more than `timeout` seconds of CPU is killed and "timeout"
     (CPU time rather than wall-clock time, so that a run's fate does not depend on how busy the machine is; where
-    /proc is missing, wall-clock time). Every finished run
-    is logged with its threshold and time, and runs that take long log a heartbeat every `heartbeat` seconds.
+    /proc is missing, wall-clock time). Every finished run is logged with its threshold and time, and runs that
+    take long log a heartbeat every `heartbeat` seconds.
     """
     context = multiprocessing.get_context("fork" if sys.platform.startswith("linux") else "spawn")
     outcomes: list[RunOutcome | None] = [None] * len(jobs)
