@@ -281,7 +281,8 @@ def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) 
         [sys.executable, "-m", "seggrasp", "segment", str(mesh_path), "--prompt", "body", "--labels", str(labels_path),
          "--views", "2", "--image-size", "32", "--decomposition", "reference", "--cache-dir", str(tmp_path / "cache"),
          "--out", str(tmp_path / "out")],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # a background launcher may ignore SIGINT
     try:
         deadline = time.monotonic() + 90
         children: set[int] = set()
