@@ -1,4 +1,4 @@
-"""A PNG contact sheet of objects coloured by part (pyrender, headless through OSMesa)."""
+"""A PNG contact sheet of objects coloured by part (pyrender; headless through OSMesa without a display)."""
 
 from __future__ import annotations
 
@@ -6,14 +6,13 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+import numpy as np
+import trimesh
+from PIL import Image, ImageDraw
 
-import numpy as np  # noqa: E402
-import trimesh  # noqa: E402
-from PIL import Image, ImageDraw  # noqa: E402
-
-from seggrasp.io import atomic_write_bytes  # noqa: E402
-from seggrasp.objects import ObjectModel  # noqa: E402
+from seggrasp.gl import import_pyrender
+from seggrasp.io import atomic_write_bytes
+from seggrasp.objects import ObjectModel
 
 #: Part colours in prompt order (label k -> PART_COLOURS[k]); unknown faces are grey.
 PART_COLOURS = np.array([(230, 85, 60), (70, 130, 220), (90, 190, 100), (240, 190, 50)], dtype=np.uint8)
@@ -33,7 +32,7 @@ def _look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0
 
 def render_object(model: ObjectModel, size: int = 320) -> np.ndarray:
     """(size, size, 3) uint8 image of one object from a fixed oblique view, faces coloured by part label."""
-    import pyrender
+    pyrender = import_pyrender()
 
     mesh = model.mesh.copy()
     labels = model.labels.face_labels if model.labels is not None else np.full(len(mesh.faces), -1)

@@ -2,8 +2,11 @@
 
 Parts are joined by manifold3d boolean union; manifold3d records for every output triangle the original solid it
 came from (`run_original_id`), which gives exact per-face part labels on a single closed 2-manifold surface.
-Everything except the CoACD collision model is cheap and byte-for-byte reproducible from (spec, seed); the
-collision model is also seeded but slow, so `generate_object(..., collision=False)` skips it.
+Everything except the CoACD collision model is cheap and reproducible from (spec, seed): vertices are written with
+fixed decimals and mass properties rounded well above floating-point noise (`stable_mass_properties`), so the files
+come out the same on CPUs and BLAS builds that sum in another order (a value within that noise of a rounding step
+could still differ in its last written digit; tests compare numbers with a tolerance). The collision model is also
+seeded but slow, so `generate_object(..., collision=False)` skips it.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+import math
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +54,12 @@ VERTEX_DECIMALS = 8
 #: a part boundary and a contact with hull k touches part `hull_parts[k]`): moderate concavity threshold, at most
 #: `max_hulls` hulls per part. The meshes are clean 2-manifolds, so CoACD's remeshing pre-process is off.
 TWIN_COLLISION = CollisionConfig(threshold=0.06, max_hulls=16, resolution=2000, mcts_iterations=100, preprocess="off", seed=0)
+#: Significant digits kept of the mass properties, each relative to its own scale: the mass itself, the object's
+#: size for the centre of mass, the largest component for the inertia tensor. Finer digits are floating-point noise
+#: that differs between CPUs and BLAS builds (summation order): e.g. products of inertia of 1e-21 kg m^2 or a centre
+#: of mass 1e-17 m off the symmetry plane; rounded to this resolution they are exactly 0 on every machine.
+MASS_DIGITS = 8
+INERTIA_DIGITS = 7
 #: Friction model for PyBullet: small spinning/rolling friction so round objects come to rest.
 SPINNING_FRICTION = 0.002
 ROLLING_FRICTION = 0.0002
@@ -124,8 +134,30 @@ def build_mesh(spec: ObjectSpec, seed: int = 0) -> GeneratedMesh:
     return GeneratedMesh(spec, seed, params, mesh, PartLabels(names, face_labels), pieces, keep)
 
 
+def round_to_scale(values: np.ndarray | float, scale: float, digits: int) -> np.ndarray:
+    """`values` rounded to `digits` significant digits of `scale` (a fixed absolute step, correctly rounded in
+    decimal): components below that step become exactly 0.0 (never -0.0)."""
+    array = np.asarray(values, dtype=np.float64)
+    if scale <= 0 or not math.isfinite(scale):
+        raise ValueError(f"rounding scale must be positive and finite, got {scale}")
+    decimals = digits - 1 - math.floor(math.log10(scale))
+    return np.array([round(float(v), decimals) + 0.0 for v in array.ravel()]).reshape(array.shape)
+
+
+def stable_mass_properties(props: MassProperties, size: float) -> MassProperties:
+    """`props` rounded to what is not floating-point noise (`MASS_DIGITS`, `INERTIA_DIGITS`); `size` is the
+    object's largest extent, the scale of its centre of mass. The same solid gives the same numbers on any machine."""
+    inertia = round_to_scale(props.inertia, float(np.abs(props.inertia).max()), INERTIA_DIGITS)
+    return MassProperties(
+        mass=float(round_to_scale(props.mass, props.mass, MASS_DIGITS)),
+        center_of_mass=round_to_scale(props.center_of_mass, size, MASS_DIGITS),
+        inertia=inertia,  # still exactly symmetric: equal components round alike
+    )
+
+
 def physical_properties(generated: GeneratedMesh) -> tuple[MassProperties, float, list[float]]:
-    """Mass properties from per-part densities, object friction (surface-area-weighted) and per-part masses."""
+    """Mass properties from per-part densities (rounded: `stable_mass_properties`), object friction
+    (surface-area-weighted) and per-part masses."""
     spec = generated.spec
     per_part = [mass_properties(piece, MATERIALS[material].density)
                 for piece, material in zip(generated.part_volumes, spec.materials)]
@@ -134,7 +166,8 @@ def physical_properties(generated: GeneratedMesh) -> tuple[MassProperties, float
     part_area = np.array([areas[labels == k].sum() for k in range(len(spec.materials))])
     frictions = np.array([MATERIALS[m].friction for m in spec.materials])
     friction = float(np.round((part_area * frictions).sum() / part_area.sum(), 3))
-    return combine_mass_properties(per_part), friction, [round(p.mass, 6) for p in per_part]
+    props = stable_mass_properties(combine_mass_properties(per_part), float(generated.mesh.extents.max()))
+    return props, friction, [round(p.mass, 6) for p in per_part]
 
 
 def _sha256(data: bytes) -> str:
@@ -181,10 +214,10 @@ def generate_object(spec: ObjectSpec, out_dir: Path, seed: int = 0, collision: b
         "prompts": generated.labels.parts,
         "materials": list(spec.materials),
         "part_masses": part_masses,
-        "mass": float(f"{props.mass:.8g}"),  # the URDF's value
+        "mass": props.mass,  # rounded: exactly the URDF's values
         "friction": friction,
-        "center_of_mass": [float(f"{c:.8g}") for c in props.center_of_mass],  # the URDF's value
-        "inertia": [[float(f"{c:.6e}") for c in row] for row in props.inertia],
+        "center_of_mass": props.center_of_mass.tolist(),
+        "inertia": props.inertia.tolist(),
         "dimensions": [round(float(d), 6) for d in mesh.extents],
         "n_vertices": int(len(mesh.vertices)),
         "n_faces": int(len(mesh.faces)),

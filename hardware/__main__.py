@@ -14,19 +14,22 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
+import os
 import sys
 from pathlib import Path
 
 import numpy as np
-import yaml
 from scipy.spatial.transform import Rotation
 
 from hardware.calibration import (EXTRINSIC_KEYS, EYE_IN_HAND_METHODS, EYE_TO_HAND_METHODS, Checkerboard,
                                   calibrate_eye_in_hand, calibrate_eye_to_hand, collect_samples,
                                   eye_in_hand_residual, eye_to_hand_residual, load_extrinsics, save_extrinsics)
-from hardware.cell import RealCell
-from hardware.config import ConfigError, load_config, transform_from_config
+from hardware.cell import RealCell, make_guard
+from hardware.config import ConfigError, load_config
 from hardware.errors import HardwareError
+from hardware.fields import read_yaml, transform_from_config
+from hardware.kinematics import forward_kinematics
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -59,15 +62,19 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _check(args: argparse.Namespace) -> None:
+def _check(args: argparse.Namespace) -> int:
+    if args.dry_run and not args.connect:
+        raise ValueError("--dry-run only applies with --connect (without it nothing connects anyway)")
     config = load_config(args.config)
+    home = forward_kinematics(config.robot.model, config.robot.home_joints) @ config.robot.T_flange_gripper
+    make_guard(config).check_pose(home, "the home pose (robot.home_joints, gripper fully open)")
     limits = config.limits
     print(f"{args.config}: valid. UR {config.robot.model} at {config.robot.ip}, gripper at "
           f"{config.gripper.host}:{config.gripper.port}, cameras {[c.serial for c in config.cameras]}")
     print(f"workspace {limits.workspace_min.tolist()} .. {limits.workspace_max.tolist()}, table at "
           f"{limits.table_height} m, tool <= {limits.max_tool_speed} m/s, grip <= {limits.max_grip_force} N")
     if not args.connect:
-        return
+        return 0
     cell = RealCell.from_config(args.config, dry_run=args.dry_run)
     try:
         print("gripper pose (world):", np.round(cell.arm.tcp_pose(), 4).tolist())
@@ -79,18 +86,30 @@ def _check(args: argparse.Namespace) -> None:
                   f"median {np.median(frame.depth[valid]) if valid.any() else 0:.3f} m")
     finally:
         cell.close()
+    return 0
 
 
 def _read_poses(path: Path) -> list[np.ndarray]:
-    if not path.is_file():
-        raise ValueError(f"poses file {path} not found")
-    data = yaml.safe_load(path.read_text())
+    data = read_yaml(path, "poses file")
     if not isinstance(data, dict) or not isinstance(data.get("poses"), list) or not data["poses"]:
         raise ValueError(f"{path}: expected 'poses:' with a list of 4x4 matrices or {{xyz, rpy}} entries")
     return [transform_from_config(pose, f"poses[{index}]", str(path)) for index, pose in enumerate(data["poses"])]
 
 
-def _calibrate(args: argparse.Namespace) -> None:
+def _calibration_output(args: argparse.Namespace, configured: Path | None) -> tuple[Path, dict]:
+    """The calibration file to update and what it holds now; checked before the robot moves."""
+    out = args.out or configured
+    if out is None:
+        raise ValueError("give --out (the config has no calibration.file to update)")
+    if out.is_dir():
+        raise ValueError(f"calibration output {out} is a folder; give a file name")
+    if not out.parent.is_dir() or not os.access(out.parent, os.W_OK):
+        raise ValueError(f"cannot write the calibration file {out}: its folder does not exist or is not writable")
+    existing = load_extrinsics(out) if out.exists() else {key: {} for key in EXTRINSIC_KEYS}
+    return out, existing
+
+
+def _calibrate(args: argparse.Namespace) -> int:
     try:
         columns, rows = (int(n) for n in args.board.lower().split("x"))
     except ValueError:
@@ -105,12 +124,7 @@ def _calibrate(args: argparse.Namespace) -> None:
     method = args.method or ("park" if wrist else "shah")
     if method not in (EYE_IN_HAND_METHODS if wrist else EYE_TO_HAND_METHODS):
         raise ValueError(f"--method {method} does not solve the {camera_config.mount}-mounted case")
-    out = args.out
-    if out is None:
-        file = yaml.safe_load(args.config.read_text()).get("calibration", {}).get("file")
-        if not file:
-            raise ValueError("give --out (the config has no calibration.file to update)")
-        out = Path(file) if Path(file).is_absolute() else args.config.parent / file
+    out, extrinsics = _calibration_output(args, config.calibration_file)
     motion = config.motion
     if args.dry_run:  # check and log the tour only: a camera in front of a robot that does not move sees nothing new
         cell = RealCell.from_config(args.config, dry_run=True, require_calibration=False, with_cameras=False)
@@ -120,7 +134,7 @@ def _calibrate(args: argparse.Namespace) -> None:
         finally:
             cell.close()
         print(f"dry run: all {len(poses)} calibration poses are within the limits; nothing moved")
-        return
+        return 0
     cell = RealCell.from_config(args.config, require_calibration=False)
     try:
         camera = next(c for c in cell.cameras if c.config.serial == args.serial)
@@ -138,7 +152,6 @@ def _calibrate(args: argparse.Namespace) -> None:
         key = "T_world_cam"
         T, T_gripper_target = calibrate_eye_to_hand(grippers, boards, method)
         residual = eye_to_hand_residual(T, T_gripper_target, grippers, boards)
-    extrinsics = load_extrinsics(out) if out.exists() else {k: {} for k in EXTRINSIC_KEYS}
     for other in EXTRINSIC_KEYS:  # a camera has one calibration: drop an old one of the other kind
         extrinsics[other].pop(args.serial, None)
     extrinsics[key][args.serial] = T
@@ -146,9 +159,15 @@ def _calibrate(args: argparse.Namespace) -> None:
                                       "residual_m": round(residual, 6)})
     print(f"camera {args.serial}: {key} written to {out} ({len(boards)}/{len(poses)} poses, "
           f"residual {residual * 1000:.2f} mm)")
+    return 0
 
 
-def _grasp(args: argparse.Namespace) -> None:
+def _grasp(args: argparse.Namespace) -> int:
+    """One grasp; a grasp the cell refuses (limits, reach, width) is exit code 1 with the reason on stderr."""
+    if not all(map(math.isfinite, [*args.at, args.yaw])):
+        raise ValueError(f"--at and --yaw must be finite numbers, got --at {args.at} --yaw {args.yaw}")
+    if not (math.isfinite(args.width) and args.width >= 0):
+        raise ValueError(f"--width must be a non-negative number of metres, got {args.width}")
     T = np.eye(4)
     T[:3, :3] = (Rotation.from_euler("z", args.yaw) * Rotation.from_euler("x", np.pi)).as_matrix()
     T[:3, 3] = args.at
@@ -159,18 +178,22 @@ def _grasp(args: argparse.Namespace) -> None:
     finally:
         cell.close()
     print(json.dumps(outcome.to_json(), indent=2))
+    if not outcome.reachable:
+        print(f"error: grasp refused{' (dry run)' if args.dry_run else ''}: {outcome.message}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns the exit code (1 with a message on bad input or a hardware failure)."""
+    """Run one command; returns the exit code (1 with a message on bad input, a hardware failure or a refused
+    grasp)."""
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        {"check": _check, "calibrate": _calibrate, "grasp": _grasp}[args.command](args)
+        return {"check": _check, "calibrate": _calibrate, "grasp": _grasp}[args.command](args)
     except (ConfigError, ValueError, HardwareError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    return 0
 
 
 if __name__ == "__main__":

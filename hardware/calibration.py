@@ -26,6 +26,7 @@ import cv2
 import numpy as np
 import yaml
 
+from hardware.fields import read_yaml, transform_from_config
 from seggrasp.io import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -43,12 +44,14 @@ EYE_IN_HAND_METHODS = {"tsai": cv2.CALIB_HAND_EYE_TSAI, "park": cv2.CALIB_HAND_E
 def load_extrinsics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     """Read a calibration file: {"T_world_cam": {serial: 4x4}, "T_gripper_cam": {serial: 4x4}} (either may be
     empty, not both); raises `ValueError` naming the file and the entry on bad input."""
-    from hardware.config import read_yaml, transform_from_config  # local: config imports this module lazily too
-
     path = Path(path)
     data = read_yaml(path, "calibration file")
     if not isinstance(data, dict):
         data = {}
+    unknown = sorted(set(map(str, data)) - {*EXTRINSIC_KEYS, "metadata"})
+    if unknown:
+        raise ValueError(f"calibration file {path}: unknown key {unknown[0]!r} (allowed: "
+                         f"{', '.join(EXTRINSIC_KEYS)}, metadata)")
     extrinsics: dict[str, dict[str, np.ndarray]] = {}
     for key in EXTRINSIC_KEYS:
         entries = data.get(key) or {}
@@ -158,8 +161,9 @@ class Checkerboard:
     square: float
 
     def __post_init__(self) -> None:
-        if self.columns < 3 or self.rows < 3 or self.square <= 0:
-            raise ValueError(f"checkerboard needs >= 3x3 inner corners and a positive square size, got {self}")
+        if self.columns < 3 or self.rows < 3 or not 0 < self.square < 1:  # metres; also refuses NaN
+            raise ValueError(f"checkerboard needs >= 3x3 inner corners and a square size in metres (0-1), "
+                             f"got {self}")
         if (self.columns + self.rows) % 2 == 0:
             raise ValueError(f"checkerboard {self.columns}x{self.rows} inner corners looks the same turned by 180 "
                              "degrees, so its pose is ambiguous; use one even and one odd count (e.g. 7x6)")

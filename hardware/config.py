@@ -2,27 +2,30 @@
 
 `load_config(path)` reads and validates the file; every problem is reported as a `ConfigError` (a `ValueError`)
 that names the offending field, e.g. ``cell.yaml: limits.max_tool_speed: must be a positive number, got -1``.
-Unknown keys are errors too, so a typo cannot silently drop a limit. See `hardware/cell.example.yaml`.
+Unknown keys are errors too, so a typo cannot silently drop a limit, and so are duplicated keys (the strict reader
+in `hardware/fields.py`). The workspace box must be within the arm's reach and clear of the robot's base column.
+See `hardware/cell.example.yaml`.
 """
 
 from __future__ import annotations
 
-import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
-from scipy.spatial.transform import Rotation
 
-#: Arm models whose nominal kinematics (hardware/ur.py) the joint-path safety check knows.
-UR_MODELS = ("ur5", "ur5e")
+from hardware.calibration import load_extrinsics
+from hardware.fields import ConfigError, FieldReader, read_yaml
+from hardware.kinematics import ARM_MODELS
 
-
-class ConfigError(ValueError):
-    """The cell configuration is invalid; the message names the file and the field."""
+#: Arm models whose nominal kinematics (hardware/kinematics.py) the joint-path safety check knows.
+UR_MODELS = tuple(ARM_MODELS)
+#: The 2F-85's finger speed (m/s) and grip force (N) ranges (datasheet): registers 0-255 span them linearly.
+FINGER_SPEED_RANGE = (0.020, 0.150)
+GRIP_FORCE_RANGE = (20.0, 235.0)
+_HOST = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?")
 
 
 @dataclass(frozen=True)
@@ -92,7 +95,7 @@ class CameraConfig:
 class Limits:
     """Safety limits: anything outside them is refused before a command is sent."""
 
-    workspace_min: np.ndarray  # (3,) world-frame box the gripper origin must stay in
+    workspace_min: np.ndarray  # (3,) world-frame box the gripper origin, fingertips and flange must stay in
     workspace_max: np.ndarray  # (3,)
     table_height: float  # m, z of the table top in the world frame
     min_table_clearance: float  # m, lowest any fingertip or the flange may come above the table
@@ -128,119 +131,7 @@ class CellConfig:
     limits: Limits
     motion: MotionConfig
     interactive: bool  # wait for Enter on reset (only when stdin is a terminal)
-
-
-# --------------------------------------------------------------------------------------------------------------------
-# Validation helpers: each takes the dotted field name so errors can say exactly where the problem is.
-
-
-class _Reader:
-    """Reads fields out of nested mappings and raises `ConfigError` naming the file and the field."""
-
-    def __init__(self, source: str) -> None:
-        self.source = source
-
-    def error(self, field_name: str, problem: str) -> ConfigError:
-        return ConfigError(f"{self.source}: {field_name}: {problem}")
-
-    def section(self, data: dict, key: str, prefix: str, allowed: set[str], required: bool = True) -> dict:
-        name = f"{prefix}{key}"
-        if key not in data:
-            if required:
-                raise self.error(name, "missing section")
-            return {}
-        value = data[key]
-        if not isinstance(value, dict):
-            raise self.error(name, f"must be a mapping, got {type(value).__name__}")
-        self.check_keys(value, f"{name}.", allowed)
-        return value
-
-    def check_keys(self, data: dict, prefix: str, allowed: set[str]) -> None:
-        unknown = sorted(set(map(str, data)) - allowed)
-        if unknown:
-            raise self.error(f"{prefix}{unknown[0]}", f"unknown key (allowed: {', '.join(sorted(allowed))})")
-
-    def number(self, data: dict, key: str, prefix: str, default: float | None = None, *, positive: bool = False,
-               non_negative: bool = False) -> float:
-        name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
-            return float(default)
-        value = data[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise self.error(name, f"must be a finite number, got {value!r}")
-        if positive and value <= 0:
-            raise self.error(name, f"must be a positive number, got {value!r}")
-        if non_negative and value < 0:
-            raise self.error(name, f"must be >= 0, got {value!r}")
-        return float(value)
-
-    def integer(self, data: dict, key: str, prefix: str, default: int | None = None, *, low: int | None = None,
-                high: int | None = None) -> int:
-        name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
-            return int(default)
-        value = data[key]
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self.error(name, f"must be an integer, got {value!r}")
-        if (low is not None and value < low) or (high is not None and value > high):
-            raise self.error(name, f"must be in [{low}, {high}], got {value}")
-        return int(value)
-
-    def string(self, data: dict, key: str, prefix: str, default: str | None = None) -> str:
-        name = f"{prefix}{key}"
-        if key not in data:
-            if default is None:
-                raise self.error(name, "missing")
-            return default
-        value = data[key]
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = str(value)  # camera serials are often written without quotes
-        if not isinstance(value, str) or not value.strip():
-            raise self.error(name, f"must be a non-empty string, got {value!r}")
-        return value.strip()
-
-    def boolean(self, data: dict, key: str, prefix: str, default: bool) -> bool:
-        if key not in data:
-            return default
-        value = data[key]
-        if not isinstance(value, bool):
-            raise self.error(f"{prefix}{key}", f"must be true or false, got {value!r}")
-        return value
-
-    def vector(self, value: Any, name: str, length: int) -> np.ndarray:
-        try:
-            array = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise self.error(name, f"must be a list of {length} numbers, got {value!r}") from None
-        if array.shape != (length,) or not np.all(np.isfinite(array)):
-            raise self.error(name, f"must be a list of {length} finite numbers, got {value!r}")
-        return array
-
-    def transform(self, value: Any, name: str) -> np.ndarray:
-        """A rigid transform written as a 4x4 matrix or as {xyz: [..], rpy: [..]} (metres, radians, extrinsic XYZ)."""
-        if isinstance(value, dict):
-            self.check_keys(value, f"{name}.", {"xyz", "rpy"})
-            T = np.eye(4)
-            T[:3, 3] = self.vector(value.get("xyz", [0.0, 0.0, 0.0]), f"{name}.xyz", 3)
-            T[:3, :3] = Rotation.from_euler("xyz", self.vector(value.get("rpy", [0.0, 0.0, 0.0]), f"{name}.rpy", 3)
-                                            ).as_matrix()
-            return T
-        try:
-            T = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise self.error(name, "must be a 4x4 matrix or {xyz: [...], rpy: [...]}") from None
-        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-            raise self.error(name, f"must be a 4x4 matrix of finite numbers, got shape {T.shape}")
-        if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
-            raise self.error(name, "last row must be [0, 0, 0, 1]")
-        R = T[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0.999:
-            raise self.error(name, "rotation part is not a proper rotation matrix (orthonormal, det +1)")
-        return T
+    calibration_file: Path | None = None  # calibration.file resolved against the config's folder, if given
 
 
 _TOP_KEYS = {"robot", "gripper", "cameras", "calibration", "workspace", "table", "limits", "motion", "interactive"}
@@ -257,19 +148,9 @@ def load_config(path: str | Path, *, require_calibration: bool = True) -> CellCo
     return parse_config(data, path, require_calibration=require_calibration)
 
 
-def read_yaml(path: Path, what: str, error: type[ValueError] = ValueError) -> Any:
-    """Parse a YAML file; a missing file or bad YAML raises `error` naming `what` and the path."""
-    if not path.is_file():
-        raise error(f"{what} {path} not found")
-    try:
-        return yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise error(f"{what} {path} is not valid YAML: {exc}") from None
-
-
 def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> CellConfig:
     """Validate already-parsed YAML `data`; `path` names the source in errors and anchors relative file paths."""
-    r = _Reader(str(path))
+    r = FieldReader(str(path))
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping with sections {sorted(_TOP_KEYS)}")
     r.check_keys(data, "", _TOP_KEYS)
@@ -277,16 +158,18 @@ def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> 
     robot = _parse_robot(r, data)
     gripper = _parse_gripper(r, data, robot.ip)
     limits = _parse_limits(r, data)
+    _check_workspace_reach(r, limits, robot)
     motion = _parse_motion(r, data, limits, gripper)
     cameras = _parse_cameras(r, data, path, require_calibration)
     return CellConfig(path=path, robot=robot, gripper=gripper, cameras=cameras, limits=limits, motion=motion,
-                      interactive=r.boolean(data, "interactive", "", False))
+                      interactive=r.boolean(data, "interactive", "", False),
+                      calibration_file=_calibration_file(r, data.get("calibration") or {}, path))
 
 
-def _parse_robot(r: _Reader, data: dict) -> RobotConfig:
+def _parse_robot(r: FieldReader, data: dict) -> RobotConfig:
     section = r.section(data, "robot", "", {"ip", "model", "home_joints", "tcp_offset", "motion_timeout"})
     ip = r.string(section, "ip", "robot.")
-    if not re.fullmatch(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?", ip):
+    if not _HOST.fullmatch(ip):
         raise r.error("robot.ip", f"must be an IP address or host name, got {ip!r}")
     model = r.string(section, "model", "robot.", "ur5").lower()
     if model not in UR_MODELS:
@@ -305,7 +188,7 @@ def _parse_robot(r: _Reader, data: dict) -> RobotConfig:
                        motion_timeout=r.number(section, "motion_timeout", "robot.", 30.0, positive=True))
 
 
-def _parse_gripper(r: _Reader, data: dict, robot_ip: str) -> GripperConfig:
+def _parse_gripper(r: FieldReader, data: dict, robot_ip: str) -> GripperConfig:
     section = r.section(data, "gripper", "", {"host", "port", "stroke", "open_register", "closed_register",
                                               "timeout", "speed", "force", "tip_beyond_origin", "closing_shift"})
     p = "gripper."
@@ -316,11 +199,13 @@ def _parse_gripper(r: _Reader, data: dict, robot_ip: str) -> GripperConfig:
         open_register=r.integer(section, "open_register", p, 3, low=0, high=255),
         closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
         timeout=r.number(section, "timeout", p, 5.0, positive=True),
-        speed=r.number(section, "speed", p, 0.05, positive=True),
-        force=r.number(section, "force", p, 40.0, positive=True),
+        speed=r.number(section, "speed", p, 0.05, low=FINGER_SPEED_RANGE[0], high=FINGER_SPEED_RANGE[1]),
+        force=r.number(section, "force", p, 100.0, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
         tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
         closing_shift=r.number(section, "closing_shift", p, 0.0),
     )
+    if not _HOST.fullmatch(config.host):
+        raise r.error("gripper.host", f"must be an IP address or host name, got {config.host!r}")
     if abs(config.closing_shift) > 0.05:
         raise r.error("gripper.closing_shift", f"{config.closing_shift} m is implausible for a 2F-85 (|shift| <= 0.05)")
     if config.closed_register <= config.open_register:
@@ -330,7 +215,31 @@ def _parse_gripper(r: _Reader, data: dict, robot_ip: str) -> GripperConfig:
     return config
 
 
-def _parse_limits(r: _Reader, data: dict) -> Limits:
+def _check_workspace_reach(r: FieldReader, limits: Limits, robot: RobotConfig) -> None:
+    """Refuse a workspace box that reaches beyond the arm or into the robot's own base column.
+
+    The gripper origin can be at most the arm's reach (flange from the shoulder) plus the tool offset from the
+    shoulder, so a box corner farther than that can never be reached; and no part of the box may come within the
+    base column's radius of the base axis (x = y = 0), where the gripper would drive into the robot itself.
+    """
+    arm = ARM_MODELS[robot.model]
+    low, high = limits.workspace_min, limits.workspace_max
+    corners = np.array([[x, y, z] for x in (low[0], high[0]) for y in (low[1], high[1]) for z in (low[2], high[2])])
+    distances = np.linalg.norm(corners - arm.shoulder, axis=1)
+    tool = float(np.linalg.norm(robot.T_flange_gripper[:3, 3]))
+    if distances.max() > arm.reach + tool:
+        far = corners[int(np.argmax(distances))]
+        raise r.error("workspace", f"corner {np.round(far, 3).tolist()} is {distances.max():.3f} m from the "
+                      f"{robot.model.upper()}'s shoulder, beyond its reach ({arm.reach} m to the flange + "
+                      f"{tool:.3f} m tool offset): shrink the box to what the arm can reach")
+    nearest = np.clip(0.0, low[:2], high[:2])  # the point of the box's footprint closest to the base axis
+    if np.linalg.norm(nearest) < arm.base_radius:
+        raise r.error("workspace", f"the box comes within {np.linalg.norm(nearest):.3f} m of the robot's base axis "
+                      f"(x = y = 0), inside its base column (radius {arm.base_radius} m): keep the box clear of "
+                      "the robot itself")
+
+
+def _parse_limits(r: FieldReader, data: dict) -> Limits:
     workspace = r.section(data, "workspace", "", {"min", "max"})
     for key in ("min", "max"):
         if key not in workspace:
@@ -364,7 +273,7 @@ def _parse_limits(r: _Reader, data: dict) -> Limits:
     return limits
 
 
-def _parse_motion(r: _Reader, data: dict, limits: Limits, gripper: GripperConfig) -> MotionConfig:
+def _parse_motion(r: FieldReader, data: dict, limits: Limits, gripper: GripperConfig) -> MotionConfig:
     section = r.section(data, "motion", "", {"tool_speed", "tool_acceleration", "joint_speed", "joint_acceleration",
                                              "pregrasp_distance", "lift_height", "hold_time", "opening_margin"},
                         required=False)
@@ -392,7 +301,7 @@ def _parse_motion(r: _Reader, data: dict, limits: Limits, gripper: GripperConfig
     return motion
 
 
-def _parse_cameras(r: _Reader, data: dict, path: Path, require_calibration: bool) -> tuple[CameraConfig, ...]:
+def _parse_cameras(r: FieldReader, data: dict, path: Path, require_calibration: bool) -> tuple[CameraConfig, ...]:
     if "cameras" not in data:
         raise r.error("cameras", "missing (a list of {serial: ...} entries)")
     entries = data["cameras"]
@@ -430,7 +339,15 @@ def _parse_cameras(r: _Reader, data: dict, path: Path, require_calibration: bool
     return tuple(cameras)
 
 
-def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> dict[str, dict[str, np.ndarray]]:
+def _calibration_file(r: FieldReader, section: dict, path: Path) -> Path | None:
+    """calibration.file resolved against the config's folder, or None when the calibration is inline/absent."""
+    if "file" not in section:
+        return None
+    file = Path(r.string(section, "file", "calibration."))
+    return file if file.is_absolute() else path.parent / file
+
+
+def _parse_calibration(r: FieldReader, data: dict, path: Path, required: bool) -> dict[str, dict[str, np.ndarray]]:
     """{"T_world_cam": {serial: T}, "T_gripper_cam": {serial: T}} from the file or the inline matrices."""
     empty: dict[str, dict[str, np.ndarray]] = {"T_world_cam": {}, "T_gripper_cam": {}}
     section = r.section(data, "calibration", "", {"file", "T_world_cam", "T_gripper_cam"}, required=required)
@@ -441,12 +358,8 @@ def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> di
         raise r.error("calibration", "give either calibration.file or inline calibration.T_world_cam / "
                       "calibration.T_gripper_cam, not both and not neither")
     if "file" in section:
-        from hardware.calibration import load_extrinsics  # local import: calibration imports this module
-
-        file = Path(r.string(section, "file", "calibration."))
-        if not file.is_absolute():
-            file = path.parent / file
-        if not file.exists() and not required:
+        file = _calibration_file(r, section, path)
+        if file is None or (not file.exists() and not required):
             return empty
         try:
             return load_extrinsics(file)
@@ -458,9 +371,4 @@ def _parse_calibration(r: _Reader, data: dict, path: Path, required: bool) -> di
             raise r.error(f"calibration.{key}", "must map camera serials to 4x4 matrices")
         empty[key] = {str(serial): r.transform(T, f"calibration.{key}.{serial}") for serial, T in inline.items()}
     return empty
-
-
-def transform_from_config(value: Any, name: str, source: str = "calibration") -> np.ndarray:
-    """Validate one transform written as in the config (4x4 or {xyz, rpy}); raises `ConfigError` naming `name`."""
-    return _Reader(source).transform(value, name)
 

@@ -15,20 +15,21 @@ Registers map to SI units linearly: the finger opening is `stroke` at `open_regi
 from __future__ import annotations
 
 import logging
+import re
 import socket
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from hardware.config import GripperConfig
+from hardware.config import FINGER_SPEED_RANGE, GRIP_FORCE_RANGE, GripperConfig
 from hardware.errors import ConnectionLostError, GripperError, SafetyError
 from hardware.safety import SafetyGuard
 
 log = logging.getLogger(__name__)
 
-SPEED_RANGE = (0.020, 0.150)  # m/s at registers 0 and 255
-FORCE_RANGE = (20.0, 235.0)  # N at registers 0 and 255
+SPEED_RANGE = FINGER_SPEED_RANGE  # m/s at registers 0 and 255
+FORCE_RANGE = GRIP_FORCE_RANGE  # N at registers 0 and 255
 
 STA_RESET, STA_ACTIVATING, STA_ACTIVE = 0, 1, 3
 OBJ_MOVING, OBJ_STOPPED_OPENING, OBJ_STOPPED_CLOSING, OBJ_AT_POSITION = 0, 1, 2, 3
@@ -46,7 +47,33 @@ FAULTS = {
     15: "automatic release completed",
 }
 
-_SETTLE = 0.02  # s of silence that ends a reply sent without a newline
+_SETTLE = 0.02  # s of silence that ends a complete reply sent without a newline
+MAX_REPLY_BYTES = 256  # the longest reply the client accepts (the URCap's are under 10 bytes)
+
+
+@dataclass(frozen=True)
+class _Reply:
+    """The reply a request expects: `head` followed by text matching `tail` (a regex), e.g. "POS " + digits."""
+
+    head: str
+    tail: str = ""
+
+    @property
+    def describe(self) -> str:
+        """How the expected reply is named in errors."""
+        return f"{self.head!r}" + (" and a number" if self.tail else "")
+
+    def complete(self, text: str) -> bool:
+        """Whether `text` is the whole expected reply."""
+        return text.startswith(self.head) and re.fullmatch(self.tail, text[len(self.head):]) is not None
+
+    def partial(self, text: str) -> bool:
+        """Whether `text` is the expected reply's beginning, still missing its end."""
+        return (self.head.startswith(text) and text != self.head) or (
+            text.startswith(self.head) and bool(self.tail) and not text[len(self.head):].strip())
+
+
+_ACK = _Reply("ack")
 
 
 @dataclass(frozen=True)
@@ -75,6 +102,13 @@ class GripResult:
     position: int  # POS register when they stopped
 
 
+def _to_register(value: float, value_range: tuple[float, float], name: str, unit: str) -> int:
+    low, high = value_range
+    if not low - 1e-9 <= value <= high + 1e-9:  # also refuses NaN
+        raise SafetyError(f"{name} {value!r} {unit} is outside the 2F-85's range [{low:g}, {high:g}] {unit}")
+    return int(round(np.clip((value - low) / (high - low), 0.0, 1.0) * 255))
+
+
 class RobotiqGripper:
     """Client for the URCap gripper socket; all commands are bounded by `config.timeout`."""
 
@@ -101,15 +135,13 @@ class RobotiqGripper:
 
     @staticmethod
     def speed_to_register(speed: float) -> int:
-        """Finger speed (m/s) -> SPE register."""
-        low, high = SPEED_RANGE
-        return int(round(np.clip((speed - low) / (high - low), 0.0, 1.0) * 255))
+        """Finger speed (m/s) -> SPE register; a speed the 2F-85 cannot do is refused, not clipped."""
+        return _to_register(speed, SPEED_RANGE, "finger speed", "m/s")
 
     @staticmethod
     def force_to_register(force: float) -> int:
-        """Grip force (N) -> FOR register."""
-        low, high = FORCE_RANGE
-        return int(round(np.clip((force - low) / (high - low), 0.0, 1.0) * 255))
+        """Grip force (N) -> FOR register; a force the 2F-85 cannot apply is refused, not clipped."""
+        return _to_register(force, FORCE_RANGE, "grip force", "N")
 
     # ------------------------------------------------------------------------------------------------- transport
     def connect(self) -> None:
@@ -117,6 +149,7 @@ class RobotiqGripper:
         if self.dry_run:
             log.info("[dry run] not connecting to the gripper at %s:%d", self.config.host, self.config.port)
             return
+        self.disconnect()  # a fresh connection: nothing from an earlier one can be read as a reply
         try:
             self._socket = socket.create_connection((self.config.host, self.config.port), timeout=self.config.timeout)
         except OSError as exc:
@@ -132,46 +165,78 @@ class RobotiqGripper:
             finally:
                 self._socket = None
 
-    def _request(self, line: str) -> str:
+    def _request(self, line: str, expected: _Reply) -> str:
+        """Send `line` and return its reply; one deadline (`config.timeout`) bounds the whole exchange.
+
+        Any timeout or protocol error (an unexpected, over-long or late reply) drops the connection, so a reply
+        that arrives late can never be taken for the answer to a later request; `connect()` starts afresh.
+        """
         if self._socket is None:
             raise ConnectionLostError("the gripper is not connected (call connect() first)")
+        deadline = time.monotonic() + self.config.timeout
         try:
+            self._check_in_step(line)
             self._socket.settimeout(self.config.timeout)
             self._socket.sendall((line + "\n").encode("ascii"))
-            return self._read_reply()
+            reply = self._read_reply(line, expected, deadline)
         except socket.timeout:
-            self.disconnect()  # a late reply would answer the next request: drop the link to resynchronise
-            raise GripperError(f"no reply from the gripper to {line!r} within {self.config.timeout} s; "
-                               "disconnected (call connect() to retry)") from None
+            raise self._drop(f"no reply from the gripper to {line!r} within {self.config.timeout} s")
         except OSError as exc:
             self.disconnect()
             raise ConnectionLostError(f"lost the gripper connection during {line!r}: {exc}") from exc
+        if not expected.complete(reply):
+            raise self._drop(f"the gripper answered {reply!r} to {line!r} (expected {expected.describe})")
+        return reply
 
-    def _read_reply(self) -> str:
-        """One reply: up to a newline, or (the URCap sends `ack` bare) until the line goes quiet."""
+    def _check_in_step(self, line: str) -> None:
+        """Refuse to send while unread bytes wait on the socket: they would be read as this request's reply."""
         assert self._socket is not None
-        buffer = b""
-        while b"\n" not in buffer:
-            chunk = self._socket.recv(1024)
+        self._socket.settimeout(0.0)
+        try:
+            stale = self._socket.recv(MAX_REPLY_BYTES, socket.MSG_PEEK)
+        except (BlockingIOError, InterruptedError):
+            return
+        if not stale:
+            self.disconnect()
+            raise ConnectionLostError("the gripper closed the connection")
+        raise self._drop(f"unexpected data {stale[:32]!r} from the gripper before {line!r} (a late reply to an "
+                         "earlier request)")
+
+    def _read_reply(self, line: str, expected: _Reply, deadline: float) -> str:
+        """One reply: up to a newline or, for a bare reply (the URCap sends `ack` without one), the expected text
+        followed by a moment of silence. A partial reply waits for the rest until the deadline."""
+        assert self._socket is not None
+        buffer = bytearray()
+        while True:
+            end = buffer.find(b"\n")
+            if end >= 0:
+                if buffer[end + 1:].strip():
+                    raise self._drop(f"more data than one reply to {line!r}: {bytes(buffer[:64])!r}")
+                return buffer[:end].decode("ascii", errors="replace").strip()
+            text = buffer.decode("ascii", errors="replace").strip()
+            settling = bool(text) and not expected.partial(text)  # complete, or not what we asked for
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise socket.timeout()
+            self._socket.settimeout(min(remaining, _SETTLE) if settling else remaining)
+            try:
+                chunk = self._socket.recv(4096)
+            except socket.timeout:
+                if settling:
+                    return text
+                raise
             if not chunk:
                 self.disconnect()
                 raise ConnectionLostError("the gripper closed the connection")
             buffer += chunk
-            if b"\n" in buffer:
-                break
-            self._socket.settimeout(_SETTLE)
-            try:
-                more = self._socket.recv(1024)
-            except socket.timeout:
-                break
-            finally:
-                if self._socket is not None:
-                    self._socket.settimeout(self.config.timeout)
-            if not more:
-                self.disconnect()
-                raise ConnectionLostError("the gripper closed the connection")
-            buffer += more
-        return buffer.split(b"\n", 1)[0].decode("ascii", errors="replace").strip()
+            if len(buffer) > MAX_REPLY_BYTES:
+                raise self._drop(f"the reply to {line!r} is longer than {MAX_REPLY_BYTES} bytes "
+                                 f"(starts {bytes(buffer[:32])!r}): not a URCap gripper socket?")
+
+    def _drop(self, problem: str) -> GripperError:
+        """Disconnect (resynchronising the stream) and return the error to raise."""
+        self.disconnect()
+        return GripperError(f"{problem}; disconnected (call connect() to retry)")
 
     def set(self, **variables: int) -> None:
         """Send one SET line with the given variables (in order); raises unless the gripper answers `ack`."""
@@ -180,20 +245,11 @@ class RobotiqGripper:
         if self.dry_run:
             log.info("[dry run] gripper %s", line)
             return
-        reply = self._request(line)
-        if reply != "ack":
-            raise GripperError(f"the gripper answered {reply!r} to {line!r} (expected 'ack')")
+        self._request(line, _ACK)
 
     def get(self, name: str) -> int:
-        """Read one variable with GET; raises on a malformed reply."""
-        reply = self._request(f"GET {name}")
-        parts = reply.split()
-        if len(parts) != 2 or parts[0] != name:
-            raise GripperError(f"unexpected reply {reply!r} to 'GET {name}'")
-        try:
-            return int(parts[1])
-        except ValueError:
-            raise GripperError(f"non-integer value in reply {reply!r} to 'GET {name}'") from None
+        """Read one variable with GET; raises (and disconnects) on a malformed reply."""
+        return int(self._request(f"GET {name}", _Reply(f"{name} ", r"\d+")).split()[1])
 
     # ------------------------------------------------------------------------------------------------ operations
     def state(self) -> GripperState:
@@ -248,10 +304,16 @@ class RobotiqGripper:
         if not 0 <= int(position) <= 255:
             raise SafetyError(f"gripper position register must be in [0, 255], got {position}")
         self.guard.check_grip_force(force)
-        self.set(POS=int(position), SPE=self.speed_to_register(speed), FOR=self.force_to_register(force), GTO=1)
+        line = {"POS": int(position), "SPE": self.speed_to_register(speed), "FOR": self.force_to_register(force)}
+        target_width = self.register_to_width(position)
+        self.guard.check_opening(target_width)
+        # while the fingers move they may be anywhere between the old and the new opening
+        self.guard.finger_opening = max(self.guard.finger_opening, target_width)
+        self.set(**line, GTO=1)
         if self.dry_run:
             self._dry_position = int(position)
-            return GripResult(False, self.register_to_width(position), int(position))
+            self.guard.finger_opening = target_width
+            return GripResult(False, target_width, int(position))
         if not wait:
             return GripResult(False, self.width(), self.get("POS"))
         self._wait(lambda: self.get("PRE") == int(position), "position request echo", self.config.timeout)
@@ -259,7 +321,8 @@ class RobotiqGripper:
         state = self.state()
         if state.fault:
             raise GripperError(f"gripper fault {state.fault}: {FAULTS.get(state.fault, 'unknown fault')}")
-        return GripResult(state.object_detected, self.register_to_width(state.position), state.position)
+        self.guard.finger_opening = self.register_to_width(state.position)
+        return GripResult(state.object_detected, self.guard.finger_opening, state.position)
 
     def move_to_width(self, width: float, *, speed: float | None = None, force: float | None = None) -> GripResult:
         """Open or close to a finger opening in metres."""

@@ -26,18 +26,10 @@ from scipy.spatial.transform import Rotation
 
 from hardware.config import RobotConfig
 from hardware.errors import ConnectionLostError, MotionError, RobotStoppedError, SafetyError
+from hardware.kinematics import ARM_MODELS, forward_kinematics
 from hardware.safety import SafetyGuard
 
 log = logging.getLogger(__name__)
-
-#: Standard DH parameters (d, a, alpha) published by Universal Robots for each model.
-_UR_DH = {
-    "ur5": (np.array([0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823]),
-            np.array([0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])),
-    "ur5e": (np.array([0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996]),
-             np.array([0.0, -0.425, -0.3922, 0.0, 0.0, 0.0])),
-}
-_UR_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 
 #: How close (m, rad) the arm must end to its target for a motion to count as done.
 POSITION_TOLERANCE = 0.005
@@ -69,19 +61,6 @@ def _close_to(T: np.ndarray, target: np.ndarray) -> bool:
     """Whether pose `T` is within the position and orientation tolerances of `target`."""
     angle = Rotation.from_matrix(T[:3, :3].T @ target[:3, :3]).magnitude()
     return bool(np.linalg.norm(T[:3, 3] - target[:3, 3]) <= POSITION_TOLERANCE and angle <= ORIENTATION_TOLERANCE)
-
-
-def forward_kinematics(model: str, q: np.ndarray) -> np.ndarray:
-    """T_base_flange from the nominal DH parameters (the controller's calibrated kinematics differ by ~1 mm)."""
-    d, a = _UR_DH[model]
-    T = np.eye(4)
-    for theta, di, ai, alpha in zip(np.asarray(q, dtype=np.float64), d, a, _UR_ALPHA):
-        ct, st, ca, sa = np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha)
-        T = T @ np.array([[ct, -st * ca, st * sa, ai * ct],
-                          [st, ct * ca, -ct * sa, ai * st],
-                          [0.0, sa, ca, di],
-                          [0.0, 0.0, 0.0, 1.0]])
-    return T
 
 
 @dataclass(frozen=True)
@@ -128,6 +107,7 @@ class URArm:
         """Open the RTDE receive and control connections and set the TCP to the gripper frame (not in dry run)."""
         if self.dry_run:
             log.info("[dry run] not connecting to the robot at %s; planning from the home joints", self.config.ip)
+            self.guard.tool_pose = self.tcp_pose()
             return
         try:
             self._receive = self._receive_factory(self.config.ip)
@@ -136,6 +116,7 @@ class URArm:
             raise ConnectionLostError(f"cannot connect to the UR controller at {self.config.ip}: {exc}") from exc
         self._apply_tcp()
         self.check_state()
+        self.guard.tool_pose = self.tcp_pose()
         log.info("connected to the UR at %s", self.config.ip)
 
     def _apply_tcp(self) -> None:
@@ -216,45 +197,64 @@ class URArm:
 
     # ------------------------------------------------------------------------------------------------------- motions
     def move_joints(self, q: Any, speed: float, acceleration: float) -> None:
-        """moveJ to joint angles `q` (rad); the tool path (nominal kinematics) is checked against the limits."""
+        """moveJ to joint angles `q` (rad); the tool path (nominal kinematics) is checked against the limits, and
+        the controller is asked whether the joints and the tool pose there are within its safety limits."""
         q = np.asarray(q, dtype=np.float64)
         if q.shape != (6,) or not np.all(np.isfinite(q)):
             raise SafetyError(f"moveJ target must be 6 finite joint angles, got {q.tolist()}")
         self.guard.check_joint_motion(speed, acceleration)
         start = self.joints()
         for s in np.linspace(0.0, 1.0, 21)[1:]:
-            self.guard.check_pose(self._gripper_pose_at((1 - s) * start + s * q), f"moveJ (at {s:.0%} of the path)")
+            self.guard.check_pose(self._gripper_pose_at((1 - s) * start + s * q), f"moveJ (at {s:.0%} of the path)",
+                                  self.guard.finger_opening)
         motion = PlannedMotion("moveJ", tuple(map(float, q)), float(speed), float(acceleration))
+        goal = self._gripper_pose_at(q)
         if self.dry_run:
             self._record_dry_run(motion)
             self._planned_q = q.copy()
-            self._planned_T = self._gripper_pose_at(q)
+            self._planned_T = self.guard.tool_pose = goal
             return
+        if not self._call(self._control, "isJointsWithinSafetyLimits", list(motion.target)):
+            raise SafetyError(f"moveJ: the controller reports joints {np.round(q, 4).tolist()} as outside its "
+                              "safety limits")
+        self._check_controller_pose(goal, "moveJ")
         self.planned_motions.append(motion)
         self._run(motion, lambda: np.max(np.abs(self.joints() - q)) <= JOINT_TOLERANCE)
+        self.guard.tool_pose = goal
 
     def move_linear(self, T_world_gripper: np.ndarray, speed: float, acceleration: float) -> None:
         """moveL the gripper frame to `T_world_gripper` in a straight line; the path is checked first."""
         target = np.asarray(T_world_gripper, dtype=np.float64)
         self.guard.check_tool_motion(speed, acceleration)
         start = self.tcp_pose()
-        self.guard.check_linear_path(start, target, "moveL")
+        self.guard.check_linear_path(start, target, "moveL", opening=self.guard.finger_opening)
         pose = ur_pose_from_matrix(target)
         motion = PlannedMotion("moveL", tuple(pose), float(speed), float(acceleration))
         if self.dry_run:
             self._record_dry_run(motion)
             self._planned_T = target.copy()
+            self.guard.tool_pose = target.copy()
             return
-        if not self._call(self._control, "isPoseWithinSafetyLimits", pose):
-            raise SafetyError(f"moveL: the controller reports {np.round(pose, 4).tolist()} as outside its safety "
-                              "limits or unreachable")
+        self._check_controller_pose(target, "moveL")
         self.planned_motions.append(motion)
         self._run(motion, lambda: _close_to(self.tcp_pose(), target))
+        self.guard.tool_pose = target.copy()
+
+    def _check_controller_pose(self, T_world_gripper: np.ndarray, what: str) -> None:
+        """Ask the controller's own safety configuration (planes, tool limits) about a gripper pose."""
+        pose = ur_pose_from_matrix(T_world_gripper)
+        if not self._call(self._control, "isPoseWithinSafetyLimits", pose):
+            raise SafetyError(f"{what}: the controller reports {np.round(pose, 4).tolist()} as outside its safety "
+                              "limits or unreachable")
 
     def has_ik_solution(self, T_world_gripper: np.ndarray) -> bool:
-        """Whether the controller finds joint angles for this gripper pose (True in dry run: no controller)."""
+        """Whether the controller finds joint angles for this gripper pose. In dry run, with no controller to ask,
+        the necessary condition: the flange is within the arm's reach of the shoulder and outside its base column."""
         if self.dry_run:
-            return True
+            arm = ARM_MODELS[self.config.model]
+            flange = (np.asarray(T_world_gripper, dtype=np.float64) @ np.linalg.inv(self.config.T_flange_gripper))[:3, 3]
+            return bool(np.linalg.norm(flange - arm.shoulder) <= arm.reach
+                        and np.linalg.norm(flange[:2]) >= arm.base_radius)
         return bool(self._call(self._control, "getInverseKinematicsHasSolution",
                                ur_pose_from_matrix(T_world_gripper)))
 
@@ -275,6 +275,7 @@ class URArm:
     def _run(self, motion: PlannedMotion, at_target: Callable[[], bool]) -> None:
         """Send `motion` asynchronously and watch it until it ends at its target, stops, or the link drops."""
         self.check_state()
+        self.guard.tool_pose = None  # unknown until the motion has ended at its target
         token = self._call(self._control, "getAsyncOperationProgress")
         method = getattr(self._control, motion.kind)
         log.info("%s target=%s speed=%g acceleration=%g", motion.kind, np.round(motion.target, 4).tolist(),

@@ -300,13 +300,16 @@ class EpisodeContext:
     scene_seed: int
     gt_mesh: trimesh.Trimesh | None = None  # the labelled mesh (object frame), for ground-truth checks
     gt_labels: np.ndarray | None = None  # prompt index per face of gt_mesh, -1 elsewhere
+    center_of_mass: np.ndarray | None = None  # object frame (the URDF's inertial origin), for the grasp sampler
+    mass: float | None = None  # kg
 
     @classmethod
     def from_object(cls, model: ObjectModel, scene_seed: int, prompts: Sequence[str] | None = None) -> "EpisodeContext":
         """Context for a twin object (its prompts and, when labelled, its ground truth)."""
         prompts = list(prompts) if prompts is not None else list(model.prompts)
         gt = model.labels.remap_to(prompts) if model.labels is not None else None
-        return cls(model.object_id, model.category, prompts, scene_seed, model.mesh, gt)
+        return cls(model.object_id, model.category, prompts, scene_seed, model.mesh, gt, model.center_of_mass,
+                   model.mass)
 
 
 def plan_trials(
@@ -429,9 +432,7 @@ def run_episode(
     plan = segmenter.plan(method, observation.T_world_obj)
     grasps = GraspSet.empty()
     if plan.own_grasps is None:
-        generator = generator or AntipodalSampler()
-        plane = table_plane_in_object_frame(observation.mesh, observation.T_world_obj)
-        grasps = generator.generate(observation.mesh, seed=seed, table_plane=plane)
+        grasps = sample_grasps(context, observation, generator, seed)
     records = []
     for slot in plan_trials(context, observation, plan, grasps, target_indices, top_k):
         record = execute_slot(cell, context, observation, plan, slot, seed, outcome_cache)
@@ -439,6 +440,20 @@ def run_episode(
         if on_record is not None:
             on_record(record)
     return records
+
+
+def sample_grasps(
+    context: EpisodeContext, observation: Observation, generator: GraspGenerator | None = None, seed: int = 0
+) -> GraspSet:
+    """Grasps on the observed mesh above the table. The antipodal sampler gets the object's centre of mass and
+    mass when the mesh is the twin's own (object frame); for a perceived mesh it estimates them at uniform density,
+    as the real cell does."""
+    generator = generator or AntipodalSampler()
+    plane = table_plane_in_object_frame(observation.mesh, observation.T_world_obj)
+    if isinstance(generator, AntipodalSampler) and not observation.perceived:
+        return generator.generate(observation.mesh, seed=seed, table_plane=plane,
+                                  center_of_mass=context.center_of_mass, mass=context.mass)
+    return generator.generate(observation.mesh, seed=seed, table_plane=plane)
 
 
 def _target_indices(prompts: Sequence[str], targets: Sequence[str] | None) -> list[int]:

@@ -30,15 +30,15 @@ from __future__ import annotations
 import atexit
 import logging
 import math
-import os
 import threading
 import time
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
+import numpy as np
+import trimesh
 
-import numpy as np  # noqa: E402
-import pyrender  # noqa: E402
-import trimesh  # noqa: E402
+from seggrasp.gl import import_pyrender
+
+pyrender = import_pyrender()  # picks headless OSMesa without a display; a missing GL library is one clear error
 from OpenGL import GL  # noqa: E402
 from pyrender.shader_program import ShaderProgramCache  # noqa: E402
 

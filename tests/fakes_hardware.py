@@ -17,7 +17,7 @@ import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import trimesh
@@ -44,6 +44,8 @@ class FakeRobotiqServer:
         self.lines: list[str] = []
         self.drop_on: str | None = None  # close the connection when a line starting with this arrives
         self.silent_on: str | None = None  # never answer a line starting with this (timeouts)
+        # line prefix -> how to send the reply instead of at once: split_reply / huge_reply / trickle_reply
+        self.misbehave: dict[str, Callable[[socket.socket, bytes], None]] = {}
         self.connections = 0
         self.vars = {name: 0 for name in self.VARIABLES}
         self.position = float(open_register)
@@ -180,8 +182,46 @@ class FakeRobotiqServer:
                 if self.silent_on and line.startswith(self.silent_on):
                     continue
                 reply = self._reply(line)
-                if reply is not None:
-                    client.sendall((reply + ("\n" if self.newline else "")).encode("ascii"))
+                if reply is None:
+                    continue
+                data = (reply + ("\n" if self.newline else "")).encode("ascii")
+                send = next((how for prefix, how in self.misbehave.items() if line.startswith(prefix)),
+                            socket.socket.sendall)
+                try:
+                    send(client, data)
+                except OSError:  # the client gave up on the reply and closed the connection
+                    return
+
+    # ------------------------------------------------------------------------------------- misbehaving replies
+    @staticmethod
+    def split_reply(at: int, delay: float) -> Callable[[socket.socket, bytes], None]:
+        """Send the first `at` bytes of a reply, wait `delay` s, then the rest (a reply split across packets)."""
+        def send(client: socket.socket, data: bytes) -> None:
+            client.sendall(data[:at])
+            time.sleep(delay)
+            client.sendall(data[at:])
+        return send
+
+    @staticmethod
+    def huge_reply(size: int) -> Callable[[socket.socket, bytes], None]:
+        """Send `size` bytes of junk without a newline instead of the reply."""
+        def send(client: socket.socket, data: bytes) -> None:
+            client.settimeout(10.0)  # a slow reader gets it all, as from a real socket
+            try:
+                client.sendall(b"x" * size)
+            finally:
+                client.settimeout(0.05)
+        return send
+
+    def trickle_reply(self, period: float) -> Callable[[socket.socket, bytes], None]:
+        """Send the reply's first 3 bytes, then a space every `period` s, never the rest nor a newline, until the
+        client hangs up (a reply that keeps coming but never ends)."""
+        def send(client: socket.socket, data: bytes) -> None:
+            client.sendall(data[:3])
+            while not self._stop.is_set() and time.monotonic() < self._deadline:
+                time.sleep(period)
+                client.sendall(b" ")
+        return send
 
 
 # ------------------------------------------------------------------------------------------------------- RTDE
@@ -205,6 +245,8 @@ class FakeUR:
         self.disconnect_raises = True  # a dropped link raises on every call (else: calls return stale values)
         self.protective_stop_after_polls: int | None = None
         self.on_motion: Any = None  # called as on_motion(kind, target) when a motion starts (test hooks)
+        self.refuse_poses = False  # isPoseWithinSafetyLimits answers False (a safety plane in the way)
+        self.refuse_joints = False  # isJointsWithinSafetyLimits answers False (a joint limit)
         self.control_created = 0
         self.receive_created = 0
         self._pending: tuple[str, np.ndarray, int] | None = None
@@ -298,7 +340,13 @@ class FakeRTDEControl:
 
     def isPoseWithinSafetyLimits(self, pose: list[float]) -> bool:
         self.ur.check_link()
-        return True
+        self._record("isPoseWithinSafetyLimits", list(pose))
+        return not self.ur.refuse_poses
+
+    def isJointsWithinSafetyLimits(self, q: list[float]) -> bool:
+        self.ur.check_link()
+        self._record("isJointsWithinSafetyLimits", list(q))
+        return not self.ur.refuse_joints
 
     def getInverseKinematicsHasSolution(self, pose: list[float]) -> bool:
         self.ur.check_link()

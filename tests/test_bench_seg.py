@@ -28,20 +28,31 @@ def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkey
     assert seconds > 0 and peak_mb > 0
 
 
-def test_unlabelled_scans_are_timed_without_a_miou(tmp_path, capsys):
-    import trimesh
+def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofusion():
+    def record(mesh, category, seed, coarse, full, default):
+        return {"mesh": mesh, "category": category, "seed": seed,
+                "miou": {"none": coarse, "full": full, "default": default}}
 
-    scan = tmp_path / "001_ring"
-    scan.mkdir()
-    trimesh.creation.annulus(r_min=0.02, r_max=0.05, height=0.03, sections=16).export(scan / "textured.obj")
-    (item,) = bench_seg.ycb_meshes(tmp_path)
-    assert item.name == "ycb_001_ring" and not item.labelled and item.labels.parts == ["object"]
-    assert item.labels.face_labels.shape == (len(item.mesh.faces),)
-    modes = {m: 0.5 for m in bench_seg.REFINE_MODES}
-    record = {"mesh": item.name, "category": "ycb", "faces": len(item.mesh.faces), "mode": "fast", "labelled": False,
-              "times": {"render": 0.1, "vote": 0.1, "decompose": 1.0, "fusion": 0.1, "total_without_detector": 1.3},
-              "peak_rss_mb": 100.0, "coacd_seconds": {"0.02": 1.0}, "distinct_partitions": [0.02], "miou": modes,
-              "warm": None}
-    bench_seg.print_table([record], ["fast"])
-    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("ycb_001_ring"))
-    assert "0.500" not in row and row.split()[-6:-1] == ["-"] * 5
+    records = [record("a1", "a", 0, 0.3, 0.4, 0.6), record("a1", "a", 1, 0.5, 0.6, 0.6),
+               record("b1", "b", 0, 0.3, 0.5, 0.4), record("b1", "b", 1, 0.3, 0.5, 0.5)]
+    mean, se = bench_seg._paired(records, "default", "none")
+    # per-seed category-mean differences: seed 0 (0.3 + 0.1) / 2 = 0.2, seed 1 (0.1 + 0.2) / 2 = 0.15
+    assert mean == pytest.approx(0.175) and se == pytest.approx(0.025)
+    report = bench_seg.quality_report(records, "test")
+    assert "not above GeoFusion: b." in report and "Worst mesh, default - GeoFusion: b1 -0.050" in report
+    assert "| a1 | a | 0.400 | 0.500 | 0.600 | +0.100 +- 0.100 |" in report
+
+
+def test_quality_needs_a_known_mesh_set_and_results_need_quality(capsys):
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "twin", "--results", "x.md"])
+    assert "--results needs --quality" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "twin", "--quality", "--seeds", "0"])
+
+
+def test_ycb_set_without_the_scans_is_a_clear_error(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("SEGGRASP_YCB_DIR", str(tmp_path / "absent"))
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "ycb", "--quality"])
+    assert "YCB scans not found" in capsys.readouterr().err

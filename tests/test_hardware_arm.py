@@ -12,6 +12,7 @@ from fakes_hardware import EXAMPLE_CONFIG, FakeUR
 from hardware.cell import make_guard
 from hardware.config import load_config
 from hardware.errors import ConnectionLostError, MotionError, RobotStoppedError, SafetyError
+from hardware.robotiq import RobotiqGripper
 from hardware.ur import URArm, forward_kinematics, matrix_from_ur_pose, ur_pose_from_matrix
 
 
@@ -234,3 +235,56 @@ def test_motion_ending_with_the_wrong_orientation_is_an_error(arm, fake):
     fake.progress = twist_on_arrival
     with pytest.raises(MotionError, match="away from its target"):
         arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
+
+
+def test_move_joints_asks_the_controllers_safety_limits_first(arm, fake, config):
+    target = config.robot.home_joints + np.array([0.2, 0, 0, 0, 0, 0])
+    fake.refuse_joints = True
+    with pytest.raises(SafetyError, match="controller reports joints .* outside its safety limits"):
+        arm.move_joints(target, 0.5, 0.8)
+    fake.refuse_joints, fake.refuse_poses = False, True
+    with pytest.raises(SafetyError, match="moveJ: the controller reports .* outside its safety limits"):
+        arm.move_joints(target, 0.5, 0.8)
+    assert fake.motions == []
+    fake.refuse_poses = False
+    arm.move_joints(target, 0.5, 0.8)
+    names = [name for name, _ in fake.commands]
+    assert names[-3:] == ["isJointsWithinSafetyLimits", "isPoseWithinSafetyLimits", "moveJ"]
+    np.testing.assert_allclose(fake.commands[-3][1][0], target)
+
+
+def test_the_flange_must_stay_inside_the_workspace(arm, fake):
+    # the pad centres are inside the box (z 0.45 < 0.55) but the flange, 15.5 cm above them, is not
+    with pytest.raises(SafetyError, match=r"flange z = 0.605 m is outside the workspace \[0.000, 0.550\]"):
+        arm.move_linear(pose([0.5, 0.1, 0.45]), 0.1, 0.5)
+    assert fake.motions == []
+
+
+def test_fingertips_are_checked_against_the_box_at_the_commanded_opening(config, fake):
+    guard = make_guard(config)
+    arm = URArm(config.robot, guard, dry_run=True)
+    gripper = RobotiqGripper(config.gripper, guard, dry_run=True)
+    arm.connect()
+    near_edge = pose([0.74, 0.1, 0.2])  # closing along world x, 1 cm inside the box's x = 0.75 face
+    # fully open (or unknown) the +x fingertip sticks out 4.25 cm: refused
+    with pytest.raises(SafetyError, match=r"fingertip \+x x = 0.782 m is outside the workspace"):
+        arm.move_linear(near_edge, 0.1, 0.5)
+    gripper.move_to_width(0.01)
+    arm.move_linear(near_edge, 0.1, 0.5)  # 1 cm open: both tips inside
+    # opening the fingers there would push the +x tip out of the box: refused before the gripper is told
+    commands = list(gripper.commands)
+    with pytest.raises(SafetyError, match=r"opening the gripper: fingertip \+x x = 0.782 m is outside"):
+        gripper.open()
+    assert gripper.commands == commands
+    gripper.move_to_width(0.015)  # a little wider still fits
+    assert [m.kind for m in arm.planned_motions] == ["moveL"]
+
+
+def test_dry_run_reports_poses_beyond_the_arms_reach_as_unreachable(config, fake):
+    arm = URArm(config.robot, make_guard(config), dry_run=True)
+    arm.connect()
+    assert arm.has_ik_solution(pose([0.5, 0.1, 0.2]))
+    # inside the box, but pointing down at its far top corner the flange is 0.92 m from the shoulder (reach 0.85 m)
+    assert not arm.has_ik_solution(pose([0.74, 0.28, 0.4]))
+    # a gripper hanging over the robot's own base
+    assert not arm.has_ik_solution(pose([0.02, 0.0, 0.3]))

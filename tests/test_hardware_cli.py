@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 from fakes_hardware import EXAMPLE_CONFIG, example_config, write_config
 from hardware.__main__ import main
 
@@ -21,11 +23,61 @@ def test_dry_run_grasp_prints_the_outcome_and_moves_nothing(capsys):
     assert outcome["reachable"] is True and outcome["lifted"] is False and "dry run" in outcome["message"]
 
 
-def test_refused_grasp_is_reported_not_raised(capsys):
+def test_refused_grasp_is_reported_and_exits_non_zero(capsys):
     assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "0.9", "0.1", "0.05", "--width", "0.05",
-                 "--dry-run"]) == 0
-    outcome = json.loads(capsys.readouterr().out)
+                 "--dry-run"]) == 1
+    captured = capsys.readouterr()
+    outcome = json.loads(captured.out)
     assert outcome["reachable"] is False and "outside the workspace" in outcome["message"]
+    assert captured.err.startswith("error: grasp refused (dry run): ") and "outside the workspace" in captured.err
+    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", "0.52", "0.1", "0.05", "--width", "0.09",
+                 "--dry-run"]) == 1
+    assert "exceeds the gripper stroke" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["--at", "nan", "0.1", "0.05", "--width", "0.05"], "--at and --yaw must be finite"),
+    (["--at", "0.52", "0.1", "0.05", "--yaw", "inf", "--width", "0.05"], "--at and --yaw must be finite"),
+    (["--at", "0.52", "0.1", "0.05", "--width", "-0.01"], "--width must be a non-negative number"),
+])
+def test_grasp_arguments_out_of_range_exit_non_zero(capsys, args, problem):
+    assert main(["grasp", str(EXAMPLE_CONFIG), *args, "--dry-run"]) == 1
+    assert problem in capsys.readouterr().err
+
+
+def test_check_refuses_dry_run_without_connect(capsys):
+    assert main(["check", str(EXAMPLE_CONFIG), "--dry-run"]) == 1
+    assert "--dry-run only applies with --connect" in capsys.readouterr().err
+
+
+def test_calibrate_checks_its_output_and_inputs_before_moving(tmp_path, capsys):
+    poses = tmp_path / "poses.yaml"
+    poses.write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\n")
+    args = ["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses", str(poses), "--dry-run"]
+    (tmp_path / "junk.yaml").write_text("T_world_cam: [1, 2\n")
+    assert main([*args, "--square", "0.03", "--out", str(tmp_path / "junk.yaml")]) == 1
+    err = capsys.readouterr().err
+    assert "calibration file" in err and "not valid YAML" in err
+    assert main([*args, "--square", "0.03", "--out", str(tmp_path / "no" / "such" / "c.yaml")]) == 1
+    assert "does not exist or is not writable" in capsys.readouterr().err
+    assert main([*args, "--square", "nan", "--out", str(tmp_path / "c.yaml")]) == 1
+    assert "square size in metres" in capsys.readouterr().err
+    poses.write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3]\n")  # broken YAML: an error, not a traceback
+    assert main([*args, "--square", "0.03", "--out", str(tmp_path / "c.yaml")]) == 1
+    assert "poses file" in capsys.readouterr().err
+    poses.write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\nposes: []\n")
+    assert main([*args, "--square", "0.03", "--out", str(tmp_path / "c.yaml")]) == 1
+    assert "duplicate key 'poses'" in capsys.readouterr().err
+
+
+def test_a_grasp_inside_the_robots_base_column_is_refused(tmp_path, capsys):
+    # finding 4: a second workspace section used to widen the box over the base; now both that and a box that
+    # encloses the base are refused before anything is planned
+    data = example_config()
+    data["workspace"]["min"] = [-0.3, -0.3, 0.0]
+    assert main(["grasp", str(write_config(tmp_path / "cell.yaml", data)), "--at", "0.0", "0.0", "0.1",
+                 "--width", "0.05", "--dry-run"]) == 1
+    assert "inside its base column" in capsys.readouterr().err
 
 
 def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
@@ -66,3 +118,11 @@ def test_calibration_dry_run_checks_the_tour(tmp_path, capsys):
     (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [0.5, 0.1, 0.9], rpy: [3.14159, 0, 0]}\n")
     assert main(args) == 1
     assert "outside the workspace" in capsys.readouterr().err
+
+
+def test_check_refuses_a_home_pose_outside_the_limits(tmp_path, capsys):
+    data = example_config()
+    data["robot"]["home_joints"][0] = 1.5708  # base turned a quarter: the gripper is beside the robot, off the table
+    assert main(["check", str(write_config(tmp_path / "cell.yaml", data))]) == 1
+    assert "the home pose (robot.home_joints, gripper fully open): gripper origin x = 0.109 m is outside" in \
+        capsys.readouterr().err

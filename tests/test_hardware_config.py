@@ -64,6 +64,17 @@ def mutate(tmp_path, change) -> ConfigError:
      "calibration.T_world_cam.012345678901", "not a proper rotation"),
     (lambda d: d.update(interactive="yes"), "interactive", "true or false"),
     (lambda d: d.update(robots={}), "robots", "unknown key"),
+    # values the bridge used to clip or misread silently
+    (lambda d: d["gripper"].update(force=10.0), "gripper.force", "must be in [20.0, 235.0]"),
+    (lambda d: d["gripper"].update(speed=50), "gripper.speed", "must be in [0.02, 0.15]"),
+    (lambda d: d["gripper"].update(host="10.0.0.1; rm"), "gripper.host", "IP address or host name"),
+    (lambda d: d["limits"].update(min_table_clearance="5e-3"), "limits.min_table_clearance",
+     "YAML reads '5e-3' as text"),
+    (lambda d: d["robot"].update(home_joints=[True, 0, 0, 0, 0, 0]), "robot.home_joints", "list of 6 numbers"),
+    # a box the arm cannot reach, or one reaching into the robot's own base column
+    (lambda d: d["workspace"].update(max=[1.2, 0.3, 0.55]), "workspace", "beyond its reach"),
+    (lambda d: d["workspace"].update(min=[-0.3, -0.3, 0.0]), "workspace", "inside its base column"),
+    (lambda d: d["workspace"].update(min=[0.05, -0.3, 0.0]), "workspace", "inside its base column"),
 ])
 def test_errors_name_the_field(tmp_path, change, field, problem):
     error = mutate(tmp_path, change)
@@ -76,6 +87,11 @@ def test_errors_name_the_field(tmp_path, change, field, problem):
 def test_missing_and_malformed_files(tmp_path):
     with pytest.raises(ConfigError, match="not found"):
         load_config(tmp_path / "absent.yaml")
+    with pytest.raises(ConfigError, match="is a folder, not a file"):
+        load_config(tmp_path)
+    (tmp_path / "binary.yaml").write_bytes(b"\xff\xfe\x00robot")
+    with pytest.raises(ConfigError, match="is not UTF-8 text"):
+        load_config(tmp_path / "binary.yaml")
     (tmp_path / "broken.yaml").write_text("robot: [unclosed\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(tmp_path / "broken.yaml")
@@ -113,3 +129,48 @@ def test_uncalibrated_cameras_are_accepted_only_when_asked(tmp_path):
     data.pop("calibration")
     config = load_config(write_config(path, data), require_calibration=False)
     assert len(config.cameras) == 2
+
+
+def test_a_duplicated_key_is_an_error_naming_it_and_both_lines(tmp_path):
+    text = EXAMPLE_CONFIG.read_text()
+    first = text.splitlines().index("  max_tool_speed: 0.25            # m/s") + 1
+    doubled = text.replace("  max_tool_speed: 0.25            # m/s\n",
+                           "  max_tool_speed: 0.25            # m/s\n  max_tool_speed: 0.9\n")
+    (tmp_path / "cell.yaml").write_text(doubled)
+    with pytest.raises(ConfigError, match=f"duplicate key 'max_tool_speed': first at line {first}, "
+                                          f"again at line {first + 1}"):
+        load_config(tmp_path / "cell.yaml")
+
+
+def test_a_second_workspace_section_cannot_replace_the_first(tmp_path):
+    # the second box would reach into the robot's base column, where a dry-run grasp used to be "reachable"
+    text = EXAMPLE_CONFIG.read_text() + "\nworkspace:\n  min: [-0.3, -0.3, 0.0]\n  max: [0.75, 0.3, 0.55]\n"
+    (tmp_path / "cell.yaml").write_text(text)
+    first = EXAMPLE_CONFIG.read_text().splitlines().index(
+        next(line for line in text.splitlines() if line.startswith("workspace:"))) + 1
+    with pytest.raises(ConfigError, match=f"duplicate key 'workspace': first at line {first}"):
+        load_config(tmp_path / "cell.yaml")
+
+
+def test_duplicates_in_the_calibration_file_are_errors_too(tmp_path):
+    data = example_config()
+    data["calibration"] = {"file": "calibration.yaml"}
+    T = "[[1, 0, 0, 0.5], [0, 1, 0, 0], [0, 0, 1, 0.6], [0, 0, 0, 1]]"
+    (tmp_path / "calibration.yaml").write_text(
+        f'T_world_cam:\n  "012345678901": {T}\n  "012345678902": {T}\n  "012345678901": {T}\n')
+    with pytest.raises(ConfigError, match="calibration.file: .*duplicate key '012345678901': first at line 2, "
+                                          "again at line 4"):
+        load_config(write_config(tmp_path / "cell.yaml", data))
+    (tmp_path / "calibration.yaml").write_text(f'T_world_cam: {{"012345678901": {T}, "012345678901": {T}}}\n')
+    with pytest.raises(ConfigError, match="duplicate key '012345678901': first at line 1, again at line 1"):
+        load_config(tmp_path / "cell.yaml")  # in a one-line mapping too
+    (tmp_path / "calibration.yaml").write_text(f'T_world_cam:\n  "012345678901": {T}\nT_world_cams: {{}}\n')
+    with pytest.raises(ConfigError, match="unknown key 'T_world_cams'"):
+        load_config(tmp_path / "cell.yaml")
+
+
+def test_a_serial_yaml_would_read_as_octal_must_be_quoted(tmp_path):
+    text = EXAMPLE_CONFIG.read_text().replace('serial: "012345678902"', "serial: 01234567")
+    (tmp_path / "cell.yaml").write_text(text)
+    with pytest.raises(ConfigError, match="'01234567' is read by YAML as a base-8/base-60 number"):
+        load_config(tmp_path / "cell.yaml")

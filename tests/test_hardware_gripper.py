@@ -121,27 +121,39 @@ def test_moving_before_activation_is_a_clear_fault(cell_config):
             gripper.close()
 
 
-def test_force_above_the_cap_is_refused_before_sending(cell_config):
+@pytest.mark.parametrize("command, problem", [
+    (dict(force=101.0), "grip force 101 N exceeds the limit 100 N"),  # limits.max_grip_force
+    (dict(force=10.0), "grip force 10.0 N is outside the 2F-85's range"),  # used to be clipped to 20 N
+    (dict(speed=0.5), "finger speed 0.5 m/s is outside the 2F-85's range"),  # used to be clipped to 0.15 m/s
+])
+def test_force_and_speed_out_of_range_are_refused_before_sending(cell_config, command, problem):
     with FakeRobotiqServer() as server:
         gripper = make_gripper(cell_config, server)
         gripper.activate()
         before = list(server.lines)
-        with pytest.raises(SafetyError, match="grip force"):
-            gripper.close(force=cell_config.limits.max_grip_force + 1)
+        with pytest.raises(SafetyError, match=problem):
+            gripper.close(**command)
         assert server.lines == before
 
 
-def test_no_reply_times_out_with_a_clear_error(cell_config):
-    with FakeRobotiqServer() as server:
-        server.silent_on = "GET"
+@pytest.mark.parametrize("misbehave", ["silent", "never-ending"])
+def test_no_complete_reply_times_out_and_disconnects(cell_config, misbehave):
+    # never-ending: the reply starts ("STA"), then a space every 5 ms, never the value nor a newline; each recv
+    # returns within the settle time, so only one deadline for the whole request stops it
+    with FakeRobotiqServer(lifetime=8.0) as server:
+        if misbehave == "silent":
+            server.silent_on = "GET STA"
+        else:
+            server.misbehave["GET STA"] = server.trickle_reply(0.005)
         gripper = make_gripper(cell_config, server, timeout=0.3)
         start = time.monotonic()
-        with pytest.raises(GripperError, match="no reply"):
+        with pytest.raises(GripperError, match="no reply from the gripper to 'GET STA' within 0.3 s; disconnected"):
             gripper.is_active()
-        assert time.monotonic() - start < 2.0
+        assert time.monotonic() - start < 1.5
         with pytest.raises(ConnectionLostError, match="not connected"):
             gripper.is_active()
         server.silent_on = None
+        server.misbehave.clear()
         gripper.connect()
         assert not gripper.is_active()
 
@@ -167,3 +179,58 @@ def test_dry_run_sends_nothing(cell_config):
         assert gripper.open().width == pytest.approx(cell_config.gripper.stroke)
         assert server.connections == 0 and server.lines == []
         assert gripper.commands[-1].startswith("SET POS 0 ")
+
+
+def test_a_huge_reply_is_refused_quickly_and_the_link_resynchronised(cell_config):
+    with FakeRobotiqServer() as server:
+        server.misbehave["GET POS"] = server.huge_reply(8 * 1024 * 1024)
+        gripper = make_gripper(cell_config, server, timeout=2.0)
+        start = time.monotonic()
+        with pytest.raises(GripperError, match="longer than 256 bytes"):
+            gripper.get("POS")
+        assert time.monotonic() - start < 1.0
+        assert gripper._socket is None  # dropped: the rest of the junk can never answer a later request
+        server.misbehave.clear()
+        gripper.connect()
+        assert gripper.get("POS") == 3 and gripper.get("STA") == 0
+
+
+@pytest.mark.parametrize("newline", [False, True], ids=["bare-replies", "newline-replies"])
+def test_replies_split_across_packets_are_reassembled(cell_config, newline):
+    with FakeRobotiqServer(newline=newline) as server:
+        gripper = make_gripper(cell_config, server)
+        server.misbehave["SET"] = server.split_reply(1, 0.1)  # "a" ... "ck"
+        server.misbehave["GET"] = server.split_reply(2, 0.1)  # "PO" ... "S 230"
+        gripper.activate()
+        gripper.close()
+        # every later request is answered by its own reply, not by the rest of an earlier one
+        assert gripper.get("POS") == 230
+        assert gripper.get("STA") == 3
+        assert gripper.get("OBJ") == 3
+        assert gripper.get("FLT") == 0
+
+
+def test_a_late_end_of_a_reply_never_answers_the_next_request(cell_config):
+    # bare replies end by silence: "STA 3" looks complete, then a stray "0" arrives late. The next request must not
+    # read it as (part of) its own reply
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        gripper.activate()
+        server.misbehave["GET STA"] = lambda client, data: (client.sendall(data), time.sleep(0.1),
+                                                            client.sendall(b"0"))
+        assert gripper.get("STA") == 3
+        time.sleep(0.2)
+        server.misbehave.clear()
+        with pytest.raises(GripperError, match=r"late reply to an earlier request\); disconnected"):
+            gripper.get("POS")
+        gripper.connect()
+        assert gripper.get("POS") == 3
+
+
+def test_an_unexpected_reply_drops_the_connection(cell_config):
+    with FakeRobotiqServer() as server:
+        gripper = make_gripper(cell_config, server)
+        with pytest.raises(GripperError, match=r"answered '\?' to 'GET XYZ'"):
+            gripper.get("XYZ")
+        with pytest.raises(ConnectionLostError, match="not connected"):
+            gripper.get("POS")
