@@ -1,10 +1,11 @@
-"""`python -m assets list|generate|gallery`: the SegGraspSet twin's command line."""
+"""`python -m assets list|generate|gallery|decompose`: the SegGraspSet twin's command line."""
 
 from __future__ import annotations
 
 import argparse
 import logging
 import sys
+import time
 from pathlib import Path
 
 from assets.generate import ASSETS_DIR, generate_set
@@ -41,6 +42,29 @@ def _gallery(args: argparse.Namespace) -> int:
     return 0
 
 
+def precompute_decompositions(mode: str = "fast", seed: int = 0, workers: int | None = None,
+                              only: list[str] | None = None) -> list[str]:
+    """Fill assets/decompositions/ with the decomposition sweeps of the twin's objects (the bundled warm cache);
+    one line per object."""
+    from seggrasp.decompose import ASSET_CACHE_DIR, DecompositionConfig, decompose_sweep
+
+    config = DecompositionConfig(mode=mode, seed=seed)
+    done = []
+    for model in load_asset_set() if not only else [load_asset(i) for i in only]:
+        started = time.perf_counter()
+        partitions = decompose_sweep(model.mesh, config, cache_dir=ASSET_CACHE_DIR, workers=workers)
+        done.append(f"{model.object_id}: {len(model.mesh.faces)} faces, {len(partitions)} distinct partitions, "
+                    f"{time.perf_counter() - started:.1f} s")
+    return done
+
+
+def _decompose(args: argparse.Namespace) -> int:
+    logging.getLogger("seggrasp").setLevel(logging.INFO)  # progress of the sweeps
+    for line in precompute_decompositions(args.mode, args.seed, args.workers, args.only):
+        print(line, flush=True)
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the process exit code."""
     parser = argparse.ArgumentParser(prog="python -m assets", description=__doc__)
@@ -56,9 +80,15 @@ def main(argv: list[str] | None = None) -> int:
     p_gal.add_argument("--out", type=Path, default=GALLERY_PATH)
     p_gal.add_argument("--columns", type=int, default=6)
     p_gal.add_argument("--category", action="append", help="only this category (repeatable)")
+    p_dec = sub.add_parser("decompose", help="precompute the decomposition sweeps of the twin into "
+                                             "assets/decompositions/ (the bundled warm cache)")
+    p_dec.add_argument("--mode", choices=("fast", "reference"), default="fast", help="sweep mode (default fast)")
+    p_dec.add_argument("--seed", type=int, default=0, help="CoACD seed (default 0, the one segmentation uses)")
+    p_dec.add_argument("--workers", type=int, help="parallel CoACD processes (default: the CPU count)")
+    p_dec.add_argument("--only", action="append", metavar="ID", help="only this object (repeatable)")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    handlers = {"list": _list, "generate": _generate, "gallery": _gallery}
+    handlers = {"list": _list, "generate": _generate, "gallery": _gallery, "decompose": _decompose}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as exc:

@@ -5,6 +5,7 @@
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
     python bench/bench_seg.py --meshes twin --quality      # mIoU per method over the twin, seeds 0-4, paired SEs
     python bench/bench_seg.py --meshes ycb --quality       # the same on the five labelled YCB scans
+    python bench/bench_seg.py --meshes ycb,big --big-faces 30000,300000 --seeds 1 --no-warm  # real and dense meshes
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
 
 Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
@@ -466,14 +467,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
-                             "seggrasp.datasets), multipart (assets.catalog_multipart), big (a twin object subdivided to --big-faces faces), or mesh names")
+                             "seggrasp.datasets), multipart (assets.catalog_multipart), big (a twin object subdivided to each of --big-faces), or "
+                             "mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--image-size", type=int, default=512)
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--big-from", default="knife_chef", help="twin object to subdivide for --meshes big")
-    parser.add_argument("--big-faces", type=int, default=30000, help="face count of the --meshes big mesh")
+    parser.add_argument("--big-faces", default="30000",
+                        help="face counts of the --meshes big meshes, comma list (e.g. 30000,300000)")
     parser.add_argument("--twin-dir", type=Path, help="read twin objects from <dir>/<id>/{mesh.obj,labels.json}")
     parser.add_argument("--normalisation", default=None, choices=NORMALISATIONS)
     parser.add_argument("--no-warm", dest="warm", action="store_false", help="skip the warm-cache run")
@@ -514,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
         source = next((t for t in twin if t.name == args.big_from), None)
         if source is None:
             parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
-        items.append(subdivided(source, args.big_faces))
+        items += [subdivided(source, int(n)) for n in args.big_faces.split(",")]
     named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:

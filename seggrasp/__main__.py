@@ -4,7 +4,9 @@ Writes DIR/labels.json (parts = the prompts; one label per face of MESH in file 
 DIR/scores.npy (faces x prompts, same order), DIR/segmented.ply (the repaired mesh coloured by label),
 DIR/labels.png (a picture of it), DIR/views.png (the rendered views with the detector's boxes),
 DIR/partitions.png (the decompositions, when refinement ran) and DIR/summary.json (detector, settings, timings
-and, with --labels, the IoUs). Bad input: a message on stderr and exit code 2.
+and, with --labels, the IoUs). Bad input (including an --out that cannot be written, checked before any work) and
+absurd work sizes: a message on stderr and exit code 2. Progress goes to stderr (-q: warnings only). SIGTERM and
+SIGINT stop the run and its CoACD processes (exit 143 / 130).
 """
 
 from __future__ import annotations
@@ -12,18 +14,26 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import signal
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from seggrasp.decompose import MAX_COACD_FACES, RUN_TIMEOUT_S, SweepTimeout
 from seggrasp.detect import DETECTOR_NAMES, make_detector
 from seggrasp.fusion import REFINE_MODES
 from seggrasp.io import atomic_save_npy, atomic_write_json
 from seggrasp.labels import PartLabels, read_labels, write_labels
 from seggrasp.mesh import PreparedMesh, load_mesh
+from seggrasp.render import MAX_IMAGE_SIZE, MAX_RIG_PIXELS, MAX_VIEWS, MIN_IMAGE_SIZE, check_rig
 
+EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
+EXIT_INTERRUPTED = 130
+#: Largest input mesh `segment` takes (faces): rendering and fusion stay within a few GB and about a minute.
+MAX_SEGMENT_FACES = 5_000_000
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,8 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("--labels", type=Path, metavar="GT.json",
                      help="ground-truth part labels of MESH (JSON or NPZ); needed by the simulated detector, and "
                           "when given the per-part IoU and mIoU are printed")
-    seg.add_argument("--views", type=int, default=10, help="number of rendered views (default 10)")
-    seg.add_argument("--image-size", type=int, default=512, help="rendered image size in pixels (default 512)")
+    seg.add_argument("--views", type=int, default=10,
+                     help=f"number of rendered views, 1..{MAX_VIEWS} (default 10)")
+    seg.add_argument("--image-size", type=int, default=512,
+                     help=f"rendered image size in pixels, {MIN_IMAGE_SIZE}..{MAX_IMAGE_SIZE} (default 512); views x "
+                          f"size^2 at most {MAX_RIG_PIXELS // 2**20} Mpx")
     seg.add_argument("--refine", choices=REFINE_MODES, default="full",
                      help="refinement after voting (default full GeoFusion; none = coarse votes only)")
     seg.add_argument("--no-anchor", dest="anchor", action="store_false",
@@ -53,10 +66,32 @@ def build_parser() -> argparse.ArgumentParser:
                      help="CoACD sweep mode for refinement (default fast)")
     seg.add_argument("--cache-dir", type=Path, help="decomposition cache folder (default: the user cache)")
     seg.add_argument("--workers", type=int, help="parallel CoACD processes (default: decided by the sweep)")
+    seg.add_argument("--coacd-timeout", type=float, metavar="SECONDS",
+                     help=f"time budget of one CoACD run of the sweep in CPU seconds (default {RUN_TIMEOUT_S['fast']:.0f} s fast, "
+                          f"{RUN_TIMEOUT_S['reference']:.0f} s reference); a run over it is dropped with a warning")
     seg.add_argument("--seed", type=int, default=0, help="seed of the camera rig, detector and decomposition")
     seg.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
-    seg.add_argument("-v", "--verbose", action="store_true", help="log progress")
+    seg.add_argument("-q", "--quiet", action="store_true", help="no progress messages, only warnings and errors")
+    seg.add_argument("-v", "--verbose", action="store_true", help="debug messages too")
+    seg.epilog = (f"Limits: --views <= {MAX_VIEWS}, --image-size <= {MAX_IMAGE_SIZE}, views x size^2 <= "
+                  f"{MAX_RIG_PIXELS // 2**20} Mpx; meshes up to {MAX_SEGMENT_FACES:,} faces; CoACD sees at most "
+                  f"{MAX_COACD_FACES:,} faces (larger working meshes are decimated for the decomposition only).")
     return parser
+
+
+def check_output_folder(out: Path) -> None:
+    """ValueError unless `out` is (or can be created as) a writable folder; creates nothing that stays."""
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    existing = out
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"--out {out} cannot be created: {existing} is not a folder")
+    try:
+        tempfile.TemporaryDirectory(dir=existing, prefix=".seggrasp-write-test-").cleanup()
+    except OSError as exc:
+        raise ValueError(f"--out {out} is not writable: {exc}") from exc
 
 
 def _read_ground_truth(path: Path, prepared: PreparedMesh, prompts: list[str]) -> PartLabels:
@@ -80,7 +115,15 @@ def run_segment(args: argparse.Namespace) -> dict:
     from seggrasp.viz import save_coloured_mesh, save_contact_sheet, save_label_preview, save_partition_previews
 
     prompts = check_prompts(args.prompts)
+    check_output_folder(args.out)
+    log = logging.getLogger("seggrasp.cli")  # __name__ is "__main__" under python -m
+    if args.mesh.is_file():
+        log.info("loading %s (%.1f MB)", args.mesh, args.mesh.stat().st_size / 1e6)
     prepared = load_mesh(args.mesh)
+    if prepared.n_source_faces > MAX_SEGMENT_FACES:
+        raise ValueError(f"{args.mesh} has {prepared.n_source_faces:,} faces; segment takes at most "
+                         f"{MAX_SEGMENT_FACES:,}: decimate it first")
+    log.info("loaded %s: %d faces", args.mesh, prepared.n_source_faces)
     ground_truth = _read_ground_truth(args.labels, prepared, prompts) if args.labels else None
     working_truth = (
         PartLabels(ground_truth.parts, prepared.from_source(ground_truth.face_labels)) if ground_truth else None
@@ -91,7 +134,7 @@ def run_segment(args: argparse.Namespace) -> dict:
     if args.refine != "none":
         from seggrasp.decompose import DecompositionConfig
 
-        decomposition = DecompositionConfig(mode=args.decomposition, seed=args.seed)
+        decomposition = DecompositionConfig(mode=args.decomposition, seed=args.seed, run_timeout=args.coacd_timeout)
     config = SegmentationConfig(n_views=args.views, image_size=args.image_size, refine=args.refine,
                                 anchor=args.anchor, decomposition=decomposition, cache_dir=args.cache_dir,
                                 workers=args.workers, seed=args.seed)
@@ -163,19 +206,37 @@ def _print_summary(summary: dict, out: Path) -> None:
           + (", partitions.png" if summary["n_partitions"] else "") + ", summary.json")
 
 
+def _stop_on_sigterm(signum: int, frame) -> None:
+    raise SystemExit(128 + signum)  # unwinds like SIGINT, so the sweep kills its CoACD processes
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
-    if args.views < 1 or args.image_size < 8:
-        parser.error("--views must be at least 1 and --image-size at least 8")
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    logging.getLogger("seggrasp").setLevel(
+        logging.DEBUG if args.verbose else logging.WARNING if args.quiet else logging.INFO)
+    try:
+        check_rig(args.views, args.image_size)
+    except ValueError as exc:
+        parser.error(str(exc).replace("n_views (the number of views)", "--views").replace("image_size", "--image-size"))
+    if args.coacd_timeout is not None and not args.coacd_timeout > 0:
+        parser.error("--coacd-timeout must be a positive number of seconds")
+    previous = signal.signal(signal.SIGTERM, _stop_on_sigterm)
     try:
         summary = run_segment(args)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except SweepTimeout as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     _print_summary(summary, args.out)
     return 0
 

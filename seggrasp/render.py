@@ -31,6 +31,7 @@ import atexit
 import logging
 import math
 import threading
+import time
 
 import numpy as np
 import trimesh
@@ -62,11 +63,29 @@ KEY_LIGHT = 0.75
 KEY_LIGHT_TILT = math.radians(35.0)
 BACKGROUND_VALUE = 255
 MAX_FACES = 2**24 - 2  # face ids + 1 must fit 24 bits of RGB
+#: Bounds of a rig (the default is 10 views of 512 px): every pixel holds 11 bytes (face id and RGB), so
+#: MAX_RIG_PIXELS, e.g. 32 views of 1024 px, keeps the views under 400 MB; more gives no better votes.
+MAX_VIEWS = 64
+MIN_IMAGE_SIZE = 8
+MAX_IMAGE_SIZE = 2048
+MAX_RIG_PIXELS = 32 * 1024 * 1024
 
 #: OpenCV camera (x right, y down, z forward) -> OpenGL camera (x right, y up, z backward).
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])
 #: Direction towards the key light in OpenCV camera coordinates: backwards (towards the viewer) and up.
 _KEY_LIGHT_IN_CAMERA = np.array([0.0, -math.sin(KEY_LIGHT_TILT), -math.cos(KEY_LIGHT_TILT)])
+
+
+def check_rig(n_views: int, image_size: int) -> None:
+    """ValueError naming the limit unless 1 <= n_views <= MAX_VIEWS, MIN_IMAGE_SIZE <= image_size <= MAX_IMAGE_SIZE
+    and the rig's pixels are within MAX_RIG_PIXELS."""
+    if not 1 <= n_views <= MAX_VIEWS:
+        raise ValueError(f"n_views (the number of views) must be between 1 and {MAX_VIEWS}, got {n_views}")
+    if not MIN_IMAGE_SIZE <= image_size <= MAX_IMAGE_SIZE:
+        raise ValueError(f"image_size must be between {MIN_IMAGE_SIZE} and {MAX_IMAGE_SIZE} pixels, got {image_size}")
+    if n_views * image_size**2 > MAX_RIG_PIXELS:
+        raise ValueError(f"{n_views} views of {image_size} px are {n_views * image_size**2 / 2**20:.0f} Mpx; the limit "
+                         f"is {MAX_RIG_PIXELS // 2**20} Mpx (views x image size^2)")
 
 
 def field_of_view(distance: float = CAMERA_DISTANCE) -> float:
@@ -83,8 +102,7 @@ def intrinsics(image_size: int, distance: float = CAMERA_DISTANCE) -> np.ndarray
 
 def camera_rig(n_views: int = 10, seed: int = 0, distance: float = CAMERA_DISTANCE) -> list[np.ndarray]:
     """Camera poses T_world_cam around the unit-normalised mesh (see the module docstring for the layout)."""
-    if n_views < 1:
-        raise ValueError(f"n_views must be at least 1, got {n_views}")
+    check_rig(n_views, MIN_IMAGE_SIZE)
     if distance <= 1.0:
         raise ValueError(f"cameras must be outside the unit sphere, got distance {distance}")
     rng = np.random.default_rng(seed)
@@ -158,8 +176,7 @@ class ViewRenderer:
     """An offscreen pyrender renderer of one image size, reused across meshes and views (OSMesa context)."""
 
     def __init__(self, image_size: int = DEFAULT_IMAGE_SIZE, distance: float = CAMERA_DISTANCE) -> None:
-        if image_size < 8:
-            raise ValueError(f"image_size must be at least 8 pixels, got {image_size}")
+        check_rig(1, image_size)
         self.image_size = int(image_size)
         self.distance = float(distance)
         self.K = intrinsics(self.image_size, self.distance)
@@ -192,6 +209,8 @@ class ViewRenderer:
         """Render `mesh` (mapped into the unit sphere) from every pose; one `View` per pose."""
         if len(mesh.faces) == 0:
             raise ValueError("cannot render a mesh without faces")
+        check_rig(max(len(poses), 1), self.image_size)
+        started = time.perf_counter()
         if not self._single_sampled:
             self._make_single_sampled()
         poses = [np.asarray(pose, dtype=float) for pose in poses]
@@ -217,7 +236,8 @@ class ViewRenderer:
             grey = np.append(shade_faces(face_normals, pose), np.uint8(BACKGROUND_VALUE))
             rgb = np.repeat(grey[face_ids][..., None], 3, axis=2)  # id -1 picks the trailing background value
             views.append(View(rgb=rgb, face_ids=face_ids, K=self.K.copy(), T_world_cam=pose.copy()))
-        logger.debug("rendered %d views of %d faces at %d px", len(views), len(mesh.faces), self.image_size)
+        logger.info("rendered %d views of %d faces at %d px in %.1f s", len(views), len(mesh.faces), self.image_size,
+                    time.perf_counter() - started)
         return views
 
     def _build_scene(self, mesh: trimesh.Trimesh, znear: float, zfar: float):

@@ -8,6 +8,8 @@ rows.
 
 from __future__ import annotations
 
+import logging
+import time
 from typing import Sequence
 
 import numpy as np
@@ -16,6 +18,8 @@ from seggrasp.detect.base import Detections
 from seggrasp.labels import UNKNOWN
 from seggrasp.views import View
 
+logger = logging.getLogger(__name__)
+
 
 def vote(views: Sequence[View], detections: Sequence[Detections], n_faces: int, n_prompts: int) -> np.ndarray:
     """The (n_faces, n_prompts) score matrix S of eq. 1 from the views' face-id buffers and the detections."""
@@ -23,6 +27,7 @@ def vote(views: Sequence[View], detections: Sequence[Detections], n_faces: int, 
         raise ValueError(f"got {len(views)} views but {len(detections)} detection sets; need one per view")
     if n_faces < 1 or n_prompts < 1:
         raise ValueError(f"need at least one face and one prompt, got n_faces={n_faces}, n_prompts={n_prompts}")
+    started = time.perf_counter()
     flat_scores = np.zeros(n_faces * n_prompts)
     for index, (view, found) in enumerate(zip(views, detections)):
         if len(found) == 0:
@@ -44,6 +49,8 @@ def vote(views: Sequence[View], detections: Sequence[Detections], n_faces: int, 
             weights=found.scores[box_of_hit],
             minlength=n_faces * n_prompts,
         )
+    logger.info("voted %d boxes of %d views into %d faces x %d prompts in %.1f s", sum(len(d) for d in detections),
+                len(views), n_faces, n_prompts, time.perf_counter() - started)
     return flat_scores.reshape(n_faces, n_prompts)
 
 

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import seggrasp.decompose as decompose
+import seggrasp.decompose.workers as workers
 from seggrasp.decompose import DecompositionConfig
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
@@ -19,7 +20,7 @@ def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkey
     keys = {DecompositionConfig().run_key(decompose.mesh_hash(model.mesh), t) for t in (0.02, 0.25)}
     if not all((bundled / f"{key}.npz").is_file() for key in keys):
         pytest.skip("assets/decompositions/ lacks knife_chef's fast sweep")
-    monkeypatch.setattr(decompose, "run_coacd_hulls",
+    monkeypatch.setattr(workers, "run_coacd_hulls",
                         lambda vertices, faces, threshold, params: [np.asarray(model.mesh.bounding_box.vertices)])
     partitions, stats, seconds, peak_mb = bench_seg.sweep_in_child(model.mesh, DecompositionConfig(), tmp_path, 1)
     assert stats.cached == [] and {0.02, 0.25} <= set(stats.run_seconds)

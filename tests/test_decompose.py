@@ -2,12 +2,14 @@
 
 import json
 import os
+import time
 
 import numpy as np
 import pytest
 import trimesh
 
 import seggrasp.decompose as decompose
+import seggrasp.decompose.workers as workers
 from seggrasp.decompose import (
     COACD_DEFAULTS,
     PAPER_THRESHOLDS,
@@ -134,7 +136,7 @@ def known_hulls(vertices, faces, threshold, params):
 def test_sweep_selection_returns_the_distinct_partitions_of_a_mesh_with_known_hulls(monkeypatch, tmp_path):
     mesh, cube_of_face = four_boxes()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=known_hulls))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, None, real=known_hulls))
 
     def expected(threshold):
         group_of_cube = {cube: g for g, group in enumerate(groups_at(threshold)) for cube in group}
@@ -189,7 +191,7 @@ def logged_calls(log):
 def test_reference_mode_runs_the_literal_paper_sweep(monkeypatch, tmp_path):
     mesh = l_shape()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
     partitions = decompose_sweep(mesh, DecompositionConfig(mode="reference", seed=3), cache_dir=tmp_path)
     calls = logged_calls(log)
     assert [c[0] for c in calls] == [pytest.approx(0.01 * k) for k in range(1, 26)]  # all 25, serial, in order
@@ -206,10 +208,10 @@ def test_a_crashing_coacd_run_raises_instead_of_killing_the_interpreter(monkeypa
             os.abort()
         return [np.asarray(mesh.bounding_box.vertices)]
 
-    monkeypatch.setattr(decompose, "run_coacd_hulls", abort_on_simplified)
+    monkeypatch.setattr(workers, "run_coacd_hulls", abort_on_simplified)
     (partition,) = decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "a")
     assert partition.part_of_face.shape == (len(mesh.faces),)  # retried on the full mesh
-    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
     with pytest.raises(RuntimeError, match="crashed"):
         decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,)), cache_dir=tmp_path / "b")
 
@@ -221,7 +223,7 @@ def test_cache_hit_on_second_call_and_miss_on_changed_parameter(monkeypatch, tmp
     assert all(p.part_of_face.shape == (len(mesh.faces),) for p in first)
 
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, None, real=decompose.run_coacd_hulls))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, None, real=decompose.run_coacd_hulls))
     stats = SweepStats()
     second = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1, stats=stats)
     assert logged_calls(log) == [] and sorted(stats.cached) == [0.05, 0.2]
@@ -274,7 +276,7 @@ def test_parallel_workers_give_the_serial_result(tmp_path):
 def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypatch, tmp_path):
     mesh = l_shape().subdivide().subdivide()
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(mesh.bounding_box.vertices)]))
     decompose_sweep(mesh, DecompositionConfig(seed=2), cache_dir=tmp_path, workers=2)
     calls = logged_calls(log)
     assert len(calls) <= decompose.FAST_MAX_RUNS
@@ -288,7 +290,7 @@ def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_man
     closed = l_shape().subdivide()
     opened = trimesh.Trimesh(closed.vertices, closed.faces[1:], process=False)  # one face missing: not closed
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(decompose, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
     config = DecompositionConfig(thresholds=(0.05,))
     assert config.coacd_params()["preprocess_mode"] == "off"
     decompose_sweep(closed, config, cache_dir=tmp_path / "closed", workers=1)
@@ -300,13 +302,153 @@ def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_man
 
 def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path, twin_knife):
     model = twin_knife
-    monkeypatch.setattr(decompose, "run_coacd_hulls", lambda *args: os.abort())
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
     stats = SweepStats()
     try:
         partitions = decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path, stats=stats)
     except RuntimeError:
-        pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m seggrasp.decompose --precompute-assets`")
+        pytest.fail("assets/decompositions/ lacks knife_chef: run `python -m assets decompose`")
     assert stats.run_seconds == {} and len(stats.cached) >= 2
     assert partitions[0].part_of_face.shape == (len(model.mesh.faces),)
     with pytest.raises(RuntimeError, match="crashed"):  # bundled=False: a cold run (benchmarks) must run CoACD
         decompose_sweep(model.mesh, DecompositionConfig(), cache_dir=tmp_path / "cold", bundled=False)
+
+
+def test_assets_command_precomputes_the_bundled_sweeps(monkeypatch, capsys, twin_knife):
+    """`python -m assets decompose` fills assets/decompositions/; with the committed caches it runs no CoACD."""
+    from assets.__main__ import main as assets_main
+
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda *args: os.abort())
+    assert assets_main(["decompose", "--only", "knife_chef"]) == 0
+    assert "knife_chef:" in capsys.readouterr().out
+
+
+def _bounding_box_coacd(log):
+    return recording_coacd(log, None, real=lambda v, f, t, p: [trimesh.Trimesh(v, f).bounding_box.vertices])
+
+
+@pytest.mark.parametrize("damage", ["empty", "truncated"])
+def test_a_damaged_cache_entry_is_reported_discarded_and_recomputed(monkeypatch, tmp_path, caplog, damage):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05,), adaptive=False)
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
+    cache = tmp_path / "cache"
+    (first,) = decompose_sweep(mesh, config, cache_dir=cache, workers=1)
+    (entry,) = cache.glob("*.npz")
+    data = entry.read_bytes()
+    entry.write_bytes(b"" if damage == "empty" else data[: len(data) // 2])
+    with caplog.at_level("WARNING", logger="seggrasp.decompose"):
+        (again,) = decompose_sweep(mesh, config, cache_dir=cache, workers=1)
+    assert again.same_as(first)
+    assert len(logged_calls(log)) == 2  # recomputed
+    assert str(entry) in caplog.text and "discarded" in caplog.text
+    assert decompose_sweep(mesh, config, cache_dir=cache, workers=1)[0].same_as(first)  # the entry is whole again
+    assert len(logged_calls(log)) == 2
+
+
+def test_a_damaged_read_only_bundled_entry_is_skipped_and_left_alone(monkeypatch, tmp_path, caplog):
+    mesh = l_shape()
+    config = DecompositionConfig(thresholds=(0.05,), adaptive=False)
+    bundled = tmp_path / "bundled"
+    bundled.mkdir()
+    entry = bundled / f"{config.run_key(decompose.mesh_hash(mesh), 0.05)}.npz"
+    entry.write_bytes(b"PK\x03\x04 truncated")
+    monkeypatch.setattr(decompose.sweep, "ASSET_CACHE_DIR", bundled)
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(tmp_path / "calls.jsonl"))
+    with caplog.at_level("WARNING", logger="seggrasp.decompose"):
+        (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path / "cache", workers=1)
+    assert partition.part_of_face.shape == (len(mesh.faces),)
+    assert str(entry) in caplog.text and "skipped" in caplog.text
+    assert entry.read_bytes() == b"PK\x03\x04 truncated"
+
+
+def _slow_at_fine_thresholds(vertices, faces, threshold, params):
+    started = time.process_time()
+    while threshold < 0.1 and time.process_time() - started < 30:  # burns CPU: the budget counts CPU seconds
+        pass
+    return [trimesh.Trimesh(vertices, faces).bounding_box.vertices]
+
+
+def test_a_run_over_its_time_budget_is_killed_and_the_sweep_goes_on(monkeypatch, tmp_path, caplog):
+    mesh = l_shape()
+    monkeypatch.setattr(workers, "run_coacd_hulls", _slow_at_fine_thresholds)
+    config = DecompositionConfig(thresholds=(0.05, 0.2), adaptive=False, run_timeout=1.0)
+    stats = SweepStats()
+    started = time.monotonic()
+    with caplog.at_level("INFO", logger="seggrasp.decompose"):
+        partitions = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=2, stats=stats)
+    assert time.monotonic() - started < 25
+    assert [p.threshold for p in partitions] == [0.2] and stats.timed_out == [0.05]
+    assert "threshold 0.05 exceeded its time budget of 1 CPU s" in caplog.text
+    assert "CoACD at threshold 0.20: 1 parts in" in caplog.text
+    assert len(list(tmp_path.glob("*.npz"))) == 1  # the killed run is not cached
+    with pytest.raises(decompose.SweepTimeout, match="--coacd-timeout"):
+        decompose_sweep(mesh, DecompositionConfig(thresholds=(0.05,), run_timeout=0.5), cache_dir=tmp_path)
+    with pytest.raises(ValueError, match="run_timeout"):
+        DecompositionConfig(run_timeout=0)
+
+
+def test_a_long_run_logs_a_heartbeat(monkeypatch, caplog):
+    mesh = l_shape()
+    monkeypatch.setattr(workers, "run_coacd_hulls", lambda v, f, t, p: time.sleep(1.2) or [mesh.bounding_box.vertices])
+    job = workers.Job(mesh.vertices, mesh.faces, mesh.triangles_center, 1.0, 0.05, {}, "error")
+    with caplog.at_level("INFO", logger="seggrasp.decompose"):
+        (outcome,) = workers.run_jobs([job], 1, timeout=None, heartbeat=0.3)
+    assert outcome.status == "ok"
+    assert "CoACD still running: threshold 0.05 for" in caplog.text
+
+
+def test_adaptive_selection_skips_thresholds_that_failed():
+    grid = PAPER_THRESHOLDS
+    tried = []
+
+    fine, coarse = canonical_parts(np.arange(8) // 2), np.zeros(8, dtype=np.int64)
+
+    def evaluate(thresholds):  # the partition changes between 0.12 and 0.14; the run at 0.13 fails
+        tried.extend(thresholds)
+        return {t: fine if t < 0.125 else coarse for t in thresholds if abs(t - 0.13) > 1e-9}
+
+    found = select_thresholds(grid, evaluate)
+    assert len(tried) == len(set(tried))  # nothing is tried twice
+    assert 0.13 not in found and 0.14 in found and 0.12 in found
+
+
+@pytest.mark.parametrize("closed", [True, False])
+def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monkeypatch, tmp_path, closed):
+    mesh = l_shape().subdivide().subdivide()  # ~2.4k faces; the limit is lowered to 500 for the test
+    if not closed:  # the top cap of the upright arm removed: an open mesh
+        mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[mesh.triangles_center[:, 2] < mesh.bounds[1, 2] - 1e-6],
+                               process=False)
+    monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", 500)
+    log = tmp_path / "calls.jsonl"
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
+    config = DecompositionConfig(thresholds=(0.05,), simplify_tolerance=0.0)  # no manifold3d simplification
+    (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
+    ((threshold, params, n_faces, _),) = logged_calls(log)
+    assert 250 <= n_faces <= 500 < len(mesh.faces)
+    # CoACD skips its preprocessing only when manifold3d verified the decimated mesh as closed.
+    assert params["preprocess_mode"] == ("off" if closed else "auto")
+    assert partition.part_of_face.shape == (len(mesh.faces),)
+
+
+def test_face_mapping_in_chunks_equals_one_block(monkeypatch):
+    mesh, truth = two_box_mesh()
+    hulls = [box([0.1, 0.1, 0.1], [0, 0, 0]).vertices, box([0.1, 0.1, 0.01], [0, 0, 0.075]).vertices,
+             np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.1, 0.1, 0.0]])]  # a flat one too
+    scale = float(np.linalg.norm(mesh.extents))
+    whole = map_faces_to_hulls(mesh.triangles_center, hulls, scale)
+    monkeypatch.setattr(decompose.mapping, "MAP_CHUNK", 7)
+    np.testing.assert_array_equal(map_faces_to_hulls(mesh.triangles_center, hulls, scale), whole)
+
+
+def test_the_face_limit_is_in_the_cache_key_only_of_meshes_above_it(monkeypatch, tmp_path):
+    mesh = l_shape().subdivide()
+    config = DecompositionConfig(thresholds=(0.05,))
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(tmp_path / "calls.jsonl"))
+    decompose_sweep(mesh, config, cache_dir=tmp_path / "small", workers=1)
+    assert (tmp_path / "small" / f"{config.run_key(decompose.mesh_hash(mesh), 0.05)}.npz").is_file()
+    monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", len(mesh.faces) - 1)
+    decompose_sweep(mesh, config, cache_dir=tmp_path / "big", workers=1)
+    key = config.run_key(decompose.mesh_hash(mesh), 0.05, face_limit=len(mesh.faces) - 1)
+    assert [p.name for p in (tmp_path / "big").glob("*.npz")] == [f"{key}.npz"]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,51 @@ def test_corrupt_or_empty_file_gives_value_error(tmp_path: Path, name: str, cont
     path = tmp_path / name
     path.write_text(content)
     with pytest.raises(ValueError, match=str(path.name)):
+        load_mesh(path)
+
+
+@pytest.fixture
+def no_charset_detector(monkeypatch) -> None:
+    """As on a fresh machine: trimesh's optional charset detector is not installed."""
+    monkeypatch.setitem(sys.modules, "charset_normalizer", None)
+    monkeypatch.setitem(sys.modules, "chardet", None)
+
+
+def _with_latin1_comment(data: bytes, fmt: str) -> bytes:
+    if fmt == "ply":
+        return data.replace(b"end_header", b"comment scanned in Z\xfcrich\nend_header", 1)
+    if fmt == "stl":
+        return data.replace(b"solid", b"solid caf\xe9", 1)
+    return b"# scanned in Z\xfcrich\n" + data if fmt == "obj" else data + b"# caf\xe9\n"
+
+
+@pytest.mark.parametrize("fmt", ["obj", "ply", "off", "stl"])
+def test_text_mesh_with_a_latin1_byte_loads(ring, tmp_path: Path, no_charset_detector, fmt: str) -> None:
+    plain = tmp_path / f"plain.{fmt}"
+    ring.export(plain, **({"encoding": "ascii"} if fmt == "ply" else {"file_type": "stl_ascii"} if fmt == "stl" else {}))
+    path = tmp_path / f"latin1.{fmt}"
+    path.write_bytes(_with_latin1_comment(plain.read_bytes(), fmt))
+    with pytest.raises(UnicodeDecodeError):
+        path.read_bytes().decode("utf-8")
+    prepared = load_mesh(path)
+    assert prepared.n_source_faces == len(ring.faces)
+    np.testing.assert_allclose(prepared.mesh.triangles, load_mesh(plain).mesh.triangles)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_binary_garbage_is_not_a_readable_mesh_of_its_format(tmp_path: Path, no_charset_detector, fmt: str) -> None:
+    path = tmp_path / f"garbage.{fmt}"
+    path.write_bytes(np.random.default_rng(0).bytes(5000))
+    with pytest.raises(ValueError, match=rf"garbage.{fmt} is not a readable {fmt.upper()} mesh") as caught:
+        load_mesh(path)
+    assert "charset" not in str(caught.value)
+
+
+@pytest.mark.parametrize("fmt", ["ply", "obj"])
+def test_point_cloud_names_its_vertices_and_missing_faces(tmp_path: Path, fmt: str) -> None:
+    path = tmp_path / f"cloud.{fmt}"
+    trimesh.PointCloud(np.random.default_rng(0).random((1498, 3)) * 0.1).export(path)
+    with pytest.raises(ValueError, match="1498 vertices and no faces"):
         load_mesh(path)
 
 

@@ -11,6 +11,7 @@ from seggrasp.render import (
     CAMERA_DISTANCE,
     ViewRenderer,
     camera_rig,
+    check_rig,
     decode_face_ids,
     encode_face_colours,
     intrinsics,
@@ -186,3 +187,15 @@ def test_face_ids_exact_on_a_real_scan(ycb_dir) -> None:
     # Faces are too small for "interior" pixels, so compare every object pixel.
     assert (view.face_ids == reference)[on_object].mean() >= 0.98
     assert ((view.face_ids >= 0) == (reference >= 0)).mean() >= 0.995
+
+
+@pytest.mark.parametrize("n_views, image_size, message", [
+    (1000, 64, "between 1 and 64"), (1, 10000, "between 8 and 2048"), (64, 2048, "the limit is 32 Mpx")])
+def test_absurd_rigs_are_refused_before_rendering(n_views: int, image_size: int, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        check_rig(n_views, image_size)
+    box = trimesh.creation.box([0.1, 0.1, 0.1])
+    with pytest.raises(ValueError, match=message):
+        render_views(box, camera_rig(1) * n_views, image_size=image_size)  # refused before any GL work
+    check_rig(10, 512)
+    check_rig(32, 1024)

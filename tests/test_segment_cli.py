@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -195,3 +196,110 @@ def test_cli_ground_truth_must_name_a_prompt(hammer_files, tmp_path: Path, capsy
     assert code == 2
     assert "names a part of the ground truth" in capsys.readouterr().err
     assert not out.exists()  # checked before anything is computed or written
+
+
+@pytest.mark.parametrize("kind", ["file", "inside_a_file", "unwritable"])
+def test_cli_unusable_out_is_refused_before_any_work(hammer_files, tmp_path: Path, capsys, monkeypatch, kind) -> None:
+    mesh_path, labels_path, _ = hammer_files
+    a_file = tmp_path / "taken"
+    a_file.write_text("x")
+    out = {"file": a_file, "inside_a_file": a_file / "sub", "unwritable": tmp_path / "ro" / "out"}[kind]
+    if kind == "unwritable":
+        (tmp_path / "ro").mkdir()
+
+        def refuse(*args, **kwargs):
+            raise PermissionError(13, "Permission denied", str(tmp_path / "ro"))
+
+        monkeypatch.setattr("tempfile.TemporaryDirectory", refuse)  # root may write anywhere: simulate the refusal
+    monkeypatch.setattr("seggrasp.__main__.load_mesh", lambda *a: pytest.fail("work started before --out was checked"))
+    code = main(["segment", str(mesh_path), "--prompt", "handle", "--labels", str(labels_path), "--views", "2",
+                 "--image-size", "32", "--refine", "none", "--out", str(out)])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert f"--out {out}" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--views", "1000"], "--views must be between 1 and 64"),
+    (["--image-size", "10000"], "--image-size must be between 8 and 2048"),
+    (["--views", "64", "--image-size", "2048"], "limit is 32 Mpx"),
+    (["--coacd-timeout", "0"], "--coacd-timeout"),
+])
+def test_cli_absurd_work_sizes_are_refused(hammer_files, tmp_path: Path, capsys, extra, message) -> None:
+    mesh_path, labels_path, _ = hammer_files
+    with pytest.raises(SystemExit) as exited:
+        main(["segment", str(mesh_path), "--prompt", "handle", "--labels", str(labels_path), "--out",
+              str(tmp_path / "o"), *extra])
+    assert exited.value.code == 2
+    assert message in capsys.readouterr().err
+    assert "--views" in subprocess.run([sys.executable, "-m", "seggrasp", "segment", "--help"], capture_output=True,
+                                       text=True, timeout=60).stdout.split("Limits:")[1]
+
+
+def test_cli_refuses_a_mesh_over_the_face_limit(hammer_files, tmp_path: Path, capsys, monkeypatch) -> None:
+    mesh_path, labels_path, labels = hammer_files
+    monkeypatch.setattr("seggrasp.__main__.MAX_SEGMENT_FACES", len(labels) - 1)
+    code = main(["segment", str(mesh_path), "--prompt", "handle", "--labels", str(labels_path), "--views", "2",
+                 "--image-size", "32", "--out", str(tmp_path / "o")])
+    assert code == 2
+    assert f"segment takes at most {len(labels) - 1:,}" in capsys.readouterr().err
+
+
+def _children(pid: int) -> set[int]:
+    """Processes whose parent is `pid` (Linux /proc)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+@pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT", "SIGKILL"])
+def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) -> None:
+    """A cold reference sweep of a torus (CoACD at 0.01 takes minutes); the CLI is killed once a CoACD child runs."""
+    import signal
+    import time
+
+    mesh = trimesh.creation.torus(0.05, 0.015, major_sections=48, minor_sections=24)
+    mesh_path, labels_path = tmp_path / "torus.obj", tmp_path / "torus.json"
+    mesh.export(mesh_path)
+    write_labels(labels_path, PartLabels(["body"], np.zeros(len(mesh.faces), dtype=int)))
+    cli = subprocess.Popen(
+        [sys.executable, "-m", "seggrasp", "segment", str(mesh_path), "--prompt", "body", "--labels", str(labels_path),
+         "--views", "2", "--image-size", "32", "--decomposition", "reference", "--cache-dir", str(tmp_path / "cache"),
+         "--out", str(tmp_path / "out")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # a background launcher may ignore SIGINT
+    try:
+        deadline = time.monotonic() + 90
+        children: set[int] = set()
+        while not children and time.monotonic() < deadline and cli.poll() is None:
+            time.sleep(0.2)
+            children = _children(cli.pid)
+        assert children, "no CoACD child appeared"
+        time.sleep(0.5)
+        cli.send_signal(getattr(signal, signum))
+        cli.wait(timeout=30)
+        time.sleep(3)
+        survivors = [pid for pid in children if _alive(pid)]
+        assert survivors == [], f"CoACD processes {survivors} outlived the killed CLI"
+        assert b"Traceback" not in cli.stderr.read()
+    finally:
+        for pid in _children(cli.pid) | (children if "children" in locals() else set()):
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+        if cli.poll() is None:
+            cli.kill()

@@ -1,0 +1,172 @@
+"""Decomposition settings: CoACD parameters of the two sweep modes, their threshold grids and `DecompositionConfig`."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+MODES = ("fast", "reference")
+#: The paper's sweep: 0.01..0.25 in steps of 0.01.
+PAPER_THRESHOLDS: tuple[float, ...] = tuple(round(0.01 * k, 2) for k in range(1, 26))
+#: Log levels CoACD's C++ side accepts; anything else aborts the interpreter inside `coacd.set_log_level`.
+COACD_LOG_LEVELS = ("off", "critical", "error", "warn", "warning", "info", "debug")
+PREPROCESS_MODES = ("auto", "on", "off")
+#: Bump when the face -> hull mapping changes: old cache entries then no longer match.
+MAPPING_VERSION = 1
+#: A centroid within this fraction of the mesh's bounding-box diagonal outside a hull counts as inside it.
+CONTAINMENT_TOLERANCE = 1e-3
+ASSET_CACHE_DIR = Path(__file__).resolve().parents[2] / "assets" / "decompositions"
+
+#: CoACD's own defaults (coacd 1.0.x `run_coacd` signature); the reference mode passes exactly these.
+COACD_DEFAULTS = dict(
+    max_convex_hull=-1,
+    preprocess_mode="auto",
+    preprocess_resolution=50,
+    resolution=2000,
+    mcts_nodes=20,
+    mcts_iterations=150,
+    mcts_max_depth=3,
+    pca=False,
+    merge=True,
+    decimate=False,
+    max_ch_vertex=256,
+    extrude=False,
+    extrude_margin=0.01,
+    apx_mode="ch",
+    real_metric=False,
+)
+#: Fast mode: coarser CoACD search (chosen by measurement, see bench/bench_seg.py) and no preprocessing. CoACD's
+#: preprocessing remeshes the input on a voxel grid; in "auto" mode it did so on manifold3d's simplified twin knife
+#: (a closed manifold), which moved the finest cut off the blade/handle boundary (majority-label mIoU of the finest
+#: partition 0.966, i.e. one part straddling both) and took 1.4 s at 0.02; with preprocessing off the same run takes
+#: 0.24 s and the partition is exact (1.000), as on the full mesh with CoACD defaults. On the 30k-face knife the
+#: finest partition goes from 0.960 to 0.999 and the sweep from 7.2 s to 2.3 s; the hammer's and mug's partitions
+#: are unchanged. "off" is only used on meshes manifold3d verified as closed manifolds (`simplify`); any other mesh
+#: is decomposed with "auto", since CoACD may abort on non-manifold input. Lighter search settings measured on the mug
+#: (detector seeds 0-19): mcts_iterations 30 or mcts_nodes 10 save a quarter of the CPU time but give full mIoU
+#: 0.466 / 0.470 instead of 0.472; resolution 300 changes nothing.
+FAST_COACD = dict(COACD_DEFAULTS, preprocess_mode="off", resolution=500, mcts_nodes=15, mcts_iterations=60,
+                  mcts_max_depth=2)
+#: Fast mode's grid: the paper's without 0.01. On the twin's mug 0.01 alone costs 46 s with the fast settings
+#: (248 parts) against 9 s at 0.02 (96 parts), and it buys nothing measurable: on stored partitions of a
+#: --compare run on an earlier twin (4 meshes x detector seeds 0-19) full GeoFusion gives 0.501 with 0.01 and 0.499
+#: without (reference 0.490), and replaying the fast selection on the reference's own partitions 0.4893 with 0.01,
+#: 0.5002 without.
+FAST_THRESHOLDS: tuple[float, ...] = PAPER_THRESHOLDS[1:]
+#: manifold3d simplification tolerance (fraction of the bounding-box diagonal): well below the finest concavity.
+#: Coarser tolerances lower the mug's finest-partition majority-label mIoU (0.999 -> 0.991 at 0.004 and 0.008) and its
+#: full mIoU (0.472 -> 0.469 / 0.463 over detector seeds 0-19).
+FAST_SIMPLIFY_TOLERANCE = 0.002
+#: Thresholds the fast mode runs before bisecting (indices into the grid are derived from these values).
+FAST_ANCHORS = (0.02, 0.04, 0.08, 0.25)
+#: At most this many CoACD runs per sweep in fast mode (bisection stops there; the finest threshold is always run).
+#: Full GeoFusion hardly depends on the coarser partitions: replaying the selection on the reference sweep's
+#: partitions (4 benchmark meshes x detector seeds 0-19) gave mIoU 0.4907 with 6 runs, 0.4920 with 5, 0.4919 with 4
+#: or with only the two grid ends, against 0.4908 for all 25 thresholds. 5 runs instead of 6 save 17 % of the mug's
+#: CoACD time (19.7 vs 23.7 CPU s) at the same mug mIoU.
+FAST_MAX_RUNS = 5
+#: Time budget of one CoACD run (CPU seconds) by mode: a run that exceeds it is killed and the sweep goes on
+#: without it.
+RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
+#: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
+#: (bounded time and memory: one fast-mode run on a 20k-face working mesh took over a minute).
+MAX_COACD_FACES = 10_000
+
+
+@dataclass(frozen=True)
+class DecompositionConfig:
+    """Parameters of a decomposition sweep. Fields left at None take the value of the `mode`.
+
+    `thresholds`: the grid (reference: 0.01..0.25 step 0.01; fast: 0.02..0.25).
+    `coacd` overrides individual CoACD keyword arguments (keys as in `coacd.run_coacd`), on top of the mode's.
+    `simplify_tolerance` simplifies the mesh before CoACD within that fraction of its diagonal (0 = never).
+    `adaptive` runs only the thresholds needed to find every distinct partition of the grid (see the package
+    docstring). `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
+    """
+
+    mode: str = "fast"
+    seed: int = 0
+    thresholds: tuple[float, ...] | None = None
+    coacd: tuple[tuple[str, object], ...] = ()
+    simplify_tolerance: float | None = None
+    adaptive: bool | None = None
+    max_runs: int | None = None
+    log_level: str = "error"
+    run_timeout: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"unknown decomposition mode {self.mode!r}; use one of {MODES}")
+        if isinstance(self.coacd, dict):
+            object.__setattr__(self, "coacd", tuple(sorted(self.coacd.items())))
+        if self.thresholds is None:
+            object.__setattr__(self, "thresholds", PAPER_THRESHOLDS if self.mode == "reference" else FAST_THRESHOLDS)
+        thresholds = tuple(float(t) for t in self.thresholds)
+        if not thresholds or any(not (0.0 < t <= 1.0) for t in thresholds):
+            raise ValueError(f"thresholds must be a non-empty list of values in (0, 1], got {self.thresholds}")
+        if len(set(thresholds)) != len(thresholds):
+            raise ValueError(f"thresholds must be distinct, got {self.thresholds}")
+        object.__setattr__(self, "thresholds", tuple(sorted(thresholds)))
+        if self.log_level not in COACD_LOG_LEVELS:
+            raise ValueError(f"invalid CoACD log level {self.log_level!r}; use one of {COACD_LOG_LEVELS}")
+        unknown = set(dict(self.coacd)) - set(COACD_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown CoACD parameters {sorted(unknown)}; known: {sorted(COACD_DEFAULTS)}")
+        params = self.coacd_params()
+        if params["preprocess_mode"] not in PREPROCESS_MODES:
+            raise ValueError(f"preprocess_mode must be one of {PREPROCESS_MODES}, got {params['preprocess_mode']!r}")
+        if params["apx_mode"] not in ("ch", "box"):
+            raise ValueError(f"apx_mode must be 'ch' or 'box', got {params['apx_mode']!r}")
+        for key in ("resolution", "preprocess_resolution", "mcts_nodes", "mcts_iterations", "mcts_max_depth"):
+            if int(params[key]) < 1:
+                raise ValueError(f"CoACD parameter {key} must be >= 1, got {params[key]}")
+        if self.max_runs is not None and self.max_runs < 2:
+            raise ValueError(f"max_runs must be at least 2 (the two ends of the grid), got {self.max_runs}")
+        if self.run_timeout is not None and not self.run_timeout > 0:
+            raise ValueError(f"run_timeout must be a positive number of seconds, got {self.run_timeout}")
+        if not (0.0 <= self.effective_simplify_tolerance < 0.1):
+            raise ValueError(f"simplify_tolerance must be in [0, 0.1), got {self.simplify_tolerance}")
+
+    def coacd_params(self) -> dict:
+        """Keyword arguments for `coacd.run_coacd` except `threshold` (and with the seed)."""
+        params = dict(COACD_DEFAULTS if self.mode == "reference" else FAST_COACD)
+        params.update(dict(self.coacd))
+        params["seed"] = int(self.seed)
+        return params
+
+    @property
+    def effective_simplify_tolerance(self) -> float:
+        if self.simplify_tolerance is not None:
+            return float(self.simplify_tolerance)
+        return 0.0 if self.mode == "reference" else FAST_SIMPLIFY_TOLERANCE
+
+    @property
+    def effective_run_timeout(self) -> float:
+        return float(self.run_timeout) if self.run_timeout is not None else RUN_TIMEOUT_S[self.mode]
+
+    @property
+    def effective_max_runs(self) -> int | None:
+        if self.max_runs is not None:
+            return int(self.max_runs)
+        return FAST_MAX_RUNS if self.mode == "fast" else None
+
+    @property
+    def effective_adaptive(self) -> bool:
+        return self.mode == "fast" if self.adaptive is None else bool(self.adaptive)
+
+    def run_key(self, mesh_digest: str, threshold: float, face_limit: int | None = None) -> str:
+        """Cache key of one CoACD run at `threshold` on a mesh with geometry hash `mesh_digest`; `face_limit` is the
+        CoACD face limit when the mesh has more faces than it (it then shapes the working mesh)."""
+        payload = {
+            "mesh": mesh_digest,
+            "threshold": round(float(threshold), 6),
+            "coacd": {k: (v if isinstance(v, (int, float, str)) else str(v)) for k, v in
+                      sorted(self.coacd_params().items())},
+            "simplify_tolerance": self.effective_simplify_tolerance,
+            "mapping": MAPPING_VERSION,
+        }
+        if face_limit is not None:
+            payload["face_limit"] = int(face_limit)
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
