@@ -164,7 +164,7 @@ def build_glasses(p: dict) -> Built:
         rim = rim + (end_piece.translate((sign * (x_end + 0.001), y_hinge, 0.0)) - holes)
         straight = length * (1.0 - p["ear_fraction"])
         knee = (sign * (x_end - straight), y_hinge, z)
-        tip = (knee[0] + sign * -1.0 * length * p["ear_fraction"] * np.cos(angle),
+        tip = (knee[0] - sign * length * p["ear_fraction"] * np.cos(angle),
                y_hinge - length * p["ear_fraction"] * np.sin(angle), z)
         path = rounded_polyline([(sign * (x_end + 0.002), y_hinge, z), knee, tip], [0.03], step=0.004)
         temple = sweep(path, lambda s: superellipse(tt / 2, tw / 2 * (1.0 - 0.3 * s), 3.0, 20),
