@@ -3,7 +3,8 @@
     python bench/bench_seg.py                              # fast mode, twin + primitive meshes, cold then warm
     python bench/bench_seg.py --compare reference --seeds 20  # fast vs the paper's literal sweep, same coarse scores
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
-    python bench/bench_seg.py --meshes twin --quality      # mIoU per refinement mode over the twin, seeds 0-2
+    python bench/bench_seg.py --meshes twin --quality      # mIoU per method over the twin, seeds 0-4, paired SEs
+    python bench/bench_seg.py --meshes ycb --quality       # the same on the five labelled YCB scans
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
 
 Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
@@ -36,8 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seggrasp.decompose import PAPER_THRESHOLDS, DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
-from seggrasp.io import atomic_save_npz  # noqa: E402
-from seggrasp.fusion import NORMALISATIONS, REFINE_MODES, refine_scores  # noqa: E402
+from seggrasp.io import atomic_save_npz, atomic_write_text  # noqa: E402
+from seggrasp.fusion import ANCHOR_MODES, NORMALISATIONS, REFINE_MODES, refine_labels, refine_scores  # noqa: E402
 from seggrasp.labels import PartLabels, read_labels  # noqa: E402
 from seggrasp.mesh import mesh_hash  # noqa: E402
 from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
@@ -45,6 +46,8 @@ from seggrasp.render import camera_rig, render_views  # noqa: E402
 from seggrasp.vote import labels_from_scores, vote  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
+#: Row names of the --quality report.
+METHOD_NAMES = {"none": "coarse", "full": "GeoFusion (paper)", "default": "default (refine_labels)"}
 
 
 @dataclass
@@ -106,6 +109,20 @@ def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
             found.append(LabelledMesh(folder.name, folder.name.split("_")[0],
                                       trimesh.Trimesh(vertices, faces, process=False), read_labels(folder / "labels.json")))
     return found
+
+
+def multipart_meshes() -> list[LabelledMesh]:
+    """The generated three- and four-part objects of `assets.catalog_multipart` (not yet in the twin)."""
+    from assets.catalog_multipart import multipart_meshes as build
+
+    return [LabelledMesh(g.spec.object_id, g.spec.category, g.mesh, g.labels) for g in build()]
+
+
+def ycb_meshes() -> list[LabelledMesh]:
+    """The five labelled YCB scans (`seggrasp.datasets.load_ycb_set`; FileNotFoundError if the scans are absent)."""
+    from seggrasp.datasets import load_ycb_set
+
+    return [LabelledMesh(s.name, s.category, s.mesh, s.labels) for s in load_ycb_set()]
 
 
 def subdivided(item: LabelledMesh, n_faces: int) -> LabelledMesh:
@@ -340,23 +357,96 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
         print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
 
 
-def quality(items: list[LabelledMesh], args) -> None:
-    """Category and overall mIoU of every refinement mode on default-mode sweeps (warm from the bundled caches for
-    the twin), over detector seeds 0..--seeds-1."""
-    rows: dict[str, list[tuple[str, float]]] = {m: [] for m in REFINE_MODES}
-    started = time.perf_counter()
+def method_labels(scores: np.ndarray, partitions, areas: np.ndarray) -> dict[str, np.ndarray]:
+    """Labels of every refinement mode (`REFINE_MODES`, "full" = the paper's GeoFusion), of GeoFusion with every
+    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, and of the shipped default (`refine_labels` defaults)."""
+    labels = {mode: labels_from_scores(refine_scores(scores, partitions, areas, mode)) for mode in REFINE_MODES}
+    for anchor in ANCHOR_MODES:
+        if anchor != "off":
+            labels[f"anchor-{anchor}"] = refine_labels(scores, partitions, areas, "full", anchor)[1]
+    labels["default"] = refine_labels(scores, partitions, areas)[1]
+    return labels
+
+
+def quality_records(items: list[LabelledMesh], args) -> list[dict]:
+    """One record per (mesh, detector/camera seed): the mIoU of every method of `method_labels` on the default-mode
+    sweep (warm from the bundled caches for the twin, from $SEGGRASP_CACHE otherwise)."""
+    records = []
     for item in items:
         partitions = decompose_sweep(item.mesh, DecompositionConfig(seed=args.seed), workers=args.workers)
+        areas, gt, n_parts = item.mesh.area_faces, item.labels.face_labels, len(item.labels.parts)
         for seed in range(args.seeds):
             scores, _ = coarse_scores(item, args.preset, seed, args.views, args.image_size)
-            for mode, q in evaluate_modes(item, scores, partitions, args.normalisation).items():
-                rows[mode].append((item.category, q["miou"]))
-    print(f"{len(items)} meshes x {args.seeds} detector seeds (preset {args.preset}), "
-          f"{time.perf_counter() - started:.0f} s")
-    for mode in REFINE_MODES:
-        summary = mean_over_categories(rows[mode])
-        print(f"{mode:7s} mIoU {summary['overall']:.3f} (mean over categories)  " +
-              " ".join(f"{c} {v:.2f}" for c, v in summary["categories"].items()))
+            miou = {m: shape_miou(labels, gt, n_parts, areas) for m, labels in method_labels(scores, partitions,
+                                                                                              areas).items()}
+            records.append({"mesh": item.name, "category": item.category, "seed": seed, "miou": miou})
+    return records
+
+
+def _paired(records: list[dict], method: str, against: str) -> tuple[float, float]:
+    """Mean over seeds of the per-seed category-mean mIoU difference method - against, and its standard error."""
+    seeds = sorted({r["seed"] for r in records})
+    diffs = [mean_over_categories([(r["category"], r["miou"][method] - r["miou"][against])
+                                   for r in records if r["seed"] == s])["overall"] for s in seeds]
+    return float(np.mean(diffs)), float(np.std(diffs, ddof=1) / np.sqrt(len(diffs))) if len(diffs) > 1 else float("nan")
+
+
+def quality_report(records: list[dict], title: str) -> str:
+    """Markdown: per method the category-mean mIoU (mean over seeds) with paired differences to coarse and to the
+    paper's GeoFusion; per category; per mesh (coarse, GeoFusion, default, default - GeoFusion)."""
+    methods = list(records[0]["miou"])
+    seeds = sorted({r["seed"] for r in records})
+    per_mesh: dict[str, dict] = {}
+    for r in records:
+        entry = per_mesh.setdefault(r["mesh"], {"category": r["category"], "miou": {m: [] for m in methods}})
+        for m in methods:
+            entry["miou"][m].append(r["miou"][m])
+    summaries = {m: mean_over_categories([(e["category"], np.mean(e["miou"][m])) for e in per_mesh.values()])
+                 for m in methods}
+    categories = list(summaries[methods[0]]["categories"])
+    lines = [f"## {title}", "", f"{len(per_mesh)} meshes x {len(seeds)} detector/camera seeds {seeds}; mIoU = "
+             "area-weighted, mean over seeds per mesh, then over meshes per category, then over categories. "
+             "Differences are paired (same seed, same views and boxes); +- is the standard error over seeds of the "
+             "per-seed category-mean difference.", "",
+             "| method | mIoU | vs coarse | vs GeoFusion | " + " | ".join(categories) + " |",
+             "|---|---|---|---|" + "---|" * len(categories)]
+    for m in methods:
+        d_coarse, se_coarse = _paired(records, m, "none")
+        d_geo, se_geo = _paired(records, m, "full")
+        lines.append(f"| {METHOD_NAMES.get(m, m)} | {summaries[m]['overall']:.3f} | {d_coarse:+.3f} +- {se_coarse:.3f} "
+                     f"| {d_geo:+.3f} +- {se_geo:.3f} | "
+                     + " | ".join(f"{summaries[m]['categories'][c]:.3f}" for c in categories) + " |")
+    d_coarse, se_coarse = _paired(records, "default", "none")
+    below = [c for c in categories if summaries["default"]["categories"][c] <= summaries["full"]["categories"][c]]
+    gaps = {n: np.mean(e["miou"]["default"]) - np.mean(e["miou"]["full"]) for n, e in per_mesh.items()}
+    worst = min(gaps, key=gaps.get)
+    lines += ["", f"Default vs coarse: {d_coarse:+.3f} +- {se_coarse:.3f}. Categories where the default is not above "
+              f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}."]
+    lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",
+              "|---|---|---|---|---|---|"]
+    for name, e in sorted(per_mesh.items(), key=lambda kv: (kv[1]["category"], kv[0])):
+        diff = np.subtract(e["miou"]["default"], e["miou"]["full"])
+        se = diff.std(ddof=1) / np.sqrt(diff.size) if diff.size > 1 else float("nan")
+        lines.append(f"| {name} | {e['category']} | {np.mean(e['miou']['none']):.3f} | {np.mean(e['miou']['full']):.3f} "
+                     f"| {np.mean(e['miou']['default']):.3f} | {diff.mean():+.3f} +- {se:.3f} |")
+    return "\n".join(lines) + "\n"
+
+
+def quality(items: list[LabelledMesh], args) -> None:
+    """Category and overall mIoU of every method over detector/camera seeds 0..--seeds-1, with paired standard
+    errors against coarse and GeoFusion; the report is printed and (with --results) written atomically."""
+    started = time.perf_counter()
+    records = quality_records(items, args)
+    title = (f"Segmentation quality: --meshes {args.meshes}, preset {args.preset}, {args.views} views at "
+             f"{args.image_size} px, CoACD seed {args.seed} ({time.perf_counter() - started:.0f} s)")
+    report = quality_report(records, title)
+    print(report)
+    if args.results is not None:
+        command = "python bench/bench_seg.py " + " ".join(sys.argv[1:]) if args.argv is None else \
+            "python bench/bench_seg.py " + " ".join(args.argv)
+        atomic_write_text(args.results, f"{report}\nMeasured by `{command}`.\n")
+        atomic_write_text(args.results.with_suffix(".jsonl"), "".join(json.dumps(r) + "\n" for r in records))
+        print(f"written: {args.results} (and per-seed records {args.results.with_suffix('.jsonl')})")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -365,15 +455,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--normalisations", action="store_true", help="compare GeoFusion S_rev normalisations")
     parser.add_argument("--rescore", action="store_true",
                         help="re-evaluate the partitions a --compare run stored beside --out, over --seeds seeds")
-    parser.add_argument("--seeds", type=int, default=3,
-                        help="detector/camera-rig seeds 0..N-1 whose mean mIoU is reported (same seeds for every mode)")
+    parser.add_argument("--seeds", type=int, default=None,
+                        help="detector/camera-rig seeds 0..N-1 whose mean mIoU is reported (same seeds for every "
+                             "mode; default 5 with --quality, else 3)")
     parser.add_argument("--quality", action="store_true",
-                        help="mIoU of every refinement mode, mean over categories, over --seeds detector seeds")
+                        help="mIoU of every method, mean over categories, over --seeds detector/camera seeds, with "
+                             "paired standard errors against coarse and the paper's GeoFusion")
+    parser.add_argument("--results", type=Path, help="with --quality: also write the report (markdown) here")
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
-                        help="comma list of: twin, primitives, big (a twin object subdivided to --big-faces faces), "
-                             "or mesh names")
+                        help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
+                             "seggrasp.datasets), multipart (assets.catalog_multipart), big (a twin object subdivided to --big-faces faces), or mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
     parser.add_argument("--views", type=int, default=10)
@@ -389,6 +482,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run-only", choices=["fast", "reference"],
                         help="run only this mode now (the table also shows the other mode's records with --resume)")
     args = parser.parse_args(argv)
+    args.argv = argv
+    if args.seeds is None:
+        args.seeds = 5 if args.quality else 3
+    if args.seeds < 1:
+        parser.error(f"--seeds must be at least 1, got {args.seeds}")
+    if args.results is not None and not args.quality:
+        parser.error("--results needs --quality")
     if args.normalisation is None:
         from seggrasp.fusion import SHIPPED_NORMALISATION
 
@@ -401,6 +501,13 @@ def main(argv: list[str] | None = None) -> int:
         items += twin
     if "primitives" in wanted:
         items += primitive_meshes()
+    if "multipart" in wanted:
+        items += multipart_meshes()
+    if "ycb" in wanted:
+        try:
+            items += ycb_meshes()
+        except FileNotFoundError as exc:
+            parser.error(str(exc))
     if "big" in wanted:
         if not twin:
             parser.error("--meshes big needs the twin's objects")
@@ -408,7 +515,7 @@ def main(argv: list[str] | None = None) -> int:
         if source is None:
             parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
         items.append(subdivided(source, args.big_faces))
-    named = [w for w in wanted if w not in ("twin", "primitives", "big")]
+    named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:
         if name not in pool:

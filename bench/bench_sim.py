@@ -1,9 +1,12 @@
 """Benchmark of the PyBullet cell: physics steps per second, one grasp-and-lift trial (arm and floating), capture.
 
-    python bench/bench_sim.py [--trials 5] [--scene-png docs/scene.png]
+    python bench/bench_sim.py [--trials 5] [--scene-png docs/scene.png] [--no-legacy] [--out docs/results/bench-sim.md]
 
 Trials are scripted top-down grasps on a 5 x 5 x 8 cm box (0.2 kg), each from a fresh `reset`; the wall time of a
-trial covers planning (IK, table checks) and the simulated approach, close, 20 cm lift and 1 s hold.
+trial covers planning (IK, table checks) and the simulated approach, close, 20 cm lift and 1 s hold. Unless
+`--no-legacy`, the arm trial is also timed with the solver settings used before the gripper converged
+(`sim.world.LEGACY_PHYSICS`), interleaved with the current settings in the same run, and the ratio is printed.
+The lines printed are also written to `--out` (atomically).
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 import argparse
 import io
 import logging
+import os
 import tempfile
 import time
 from pathlib import Path
@@ -18,15 +22,18 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from seggrasp.io import atomic_write_bytes
+from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
 from sim.cell import SimCell
 from sim.primitives import primitive_object, top_down_grasp
+from sim.world import LEGACY_PHYSICS, PhysicsSettings
 
 
-def bench_embodiment(box, embodiment: str, trials: int) -> dict[str, float]:
-    with SimCell([box], embodiment=embodiment, seed=0, image_size=(640, 480)) as cell:
+def bench_embodiment(
+    box, embodiment: str, trials: int, physics: PhysicsSettings | None = None, idle_and_capture: bool = True
+) -> dict[str, float]:
+    with SimCell([box], embodiment=embodiment, seed=0, image_size=(640, 480), physics=physics) as cell:
         reset_times, trial_times, steps, lifted = [], [], [], 0
         for seed in range(trials):
             start = time.perf_counter()
@@ -39,6 +46,8 @@ def bench_embodiment(box, embodiment: str, trials: int) -> dict[str, float]:
             trial_times.append(time.perf_counter() - start)
             steps.append(cell.world.step_count - steps_before)
             lifted += int(outcome.lifted)
+        if not idle_and_capture:
+            return {"trial_s": float(np.median(trial_times)), "lifted": lifted}
         cell.reset(seed=0)
         n_idle = 2000
         start = time.perf_counter()
@@ -79,24 +88,58 @@ def write_scene_png(path: Path) -> None:
     atomic_write_bytes(path, buffer.getvalue())
 
 
+def _line(label: str, r: dict[str, float], trials: int) -> str:
+    return (
+        f"{label:8s} grasp-and-lift trial {r['trial_s']:.3f} s median (max {r['trial_max_s']:.3f} s, "
+        f"{r['steps_per_trial']:.0f} physics steps, lifted {r['lifted']}/{trials}); "
+        f"reset {r['reset_s']:.3f} s; idle physics {r['idle_steps_per_s']:.0f} steps/s; "
+        f"capture 2x640x480 {r['capture_s']:.3f} s"
+    )
+
+
+def compare_legacy(box, trials: int) -> list[str]:
+    """Arm trials with the current and the legacy solver settings, alternating one trial batch each, so that both
+    see the same machine load; returns the printed lines."""
+    times: dict[str, list[float]] = {"current": [], "legacy": []}
+    lifted = {"current": 0, "legacy": 0}
+    for _ in range(trials):
+        for label, physics in (("current", None), ("legacy", LEGACY_PHYSICS)):
+            r = bench_embodiment(box, "arm", 1, physics, idle_and_capture=False)
+            times[label].append(r["trial_s"])
+            lifted[label] += r["lifted"]
+    current, legacy = (float(np.median(times[k])) for k in ("current", "legacy"))
+    return [
+        f"arm trial, current solver ({PhysicsSettings().solver_iterations} iterations, contact ERP "
+        f"{PhysicsSettings().contact_erp}): {current:.3f} s median, lifted {lifted['current']}/{trials}",
+        f"arm trial, legacy solver ({LEGACY_PHYSICS.solver_iterations} iterations, default contact ERP): "
+        f"{legacy:.3f} s median, lifted {lifted['legacy']}/{trials}",
+        f"ratio current / legacy: {current / legacy:.2f}x",
+    ]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=5)
     parser.add_argument("--scene-png", type=Path, default=None, help="also write an overview image of the scene")
+    parser.add_argument("--no-legacy", action="store_true", help="skip timing the legacy solver settings")
+    parser.add_argument("--out", type=Path, default=Path("docs/results/bench-sim.md"), help="where to write the lines")
     args = parser.parse_args()
     if args.trials < 1:
         parser.error("--trials must be at least 1")
     logging.basicConfig(level=logging.WARNING)
+    lines = [f"load average before the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"]
+    print(lines[0], flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)
         for embodiment in ("arm", "floating"):
-            r = bench_embodiment(box, embodiment, args.trials)
-            print(
-                f"{embodiment:8s} grasp-and-lift trial {r['trial_s']:.3f} s median (max {r['trial_max_s']:.3f} s, "
-                f"{r['steps_per_trial']:.0f} physics steps, lifted {r['lifted']}/{args.trials}); "
-                f"reset {r['reset_s']:.3f} s; idle physics {r['idle_steps_per_s']:.0f} steps/s; "
-                f"capture 2x640x480 {r['capture_s']:.3f} s"
-            )
+            lines.append(_line(embodiment, bench_embodiment(box, embodiment, args.trials), args.trials))
+            print(lines[-1], flush=True)
+        if not args.no_legacy:
+            for line in compare_legacy(box, args.trials):
+                lines.append(line)
+                print(line, flush=True)
+    command = f"python bench/bench_sim.py --trials {args.trials}" + (" --no-legacy" if args.no_legacy else "")
+    atomic_write_text(args.out, f"# bench_sim\n\n```\n$ {command}\n" + "\n".join(lines) + "\n```\n")
     if args.scene_png is not None:
         write_scene_png(args.scene_png)
         print(f"wrote {args.scene_png}")

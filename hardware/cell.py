@@ -2,8 +2,8 @@
 
 A person places the object; the cell cannot know its mesh, so `object_mesh()` raises and the episode reconstructs
 it from `capture()` with `seggrasp.perception.perceive_object(frames, workspace)`. `execute()` runs pre-grasp,
-approach, close, lift, hold, judges the grasp by the gripper's object detection after the hold, then puts the object
-back down and backs off. Every pose of the sequence is checked against the safety limits before the first command
+approach, close, lift, hold, judges the grasp by what the gripper reports (object detection when closing and
+after the hold, the finger gap; `judge_hold`), names the failure, then puts the object back down and backs off. Every pose of the sequence is checked against the safety limits before the first command
 is sent; a refused or unreachable grasp is reported as `reachable=False`, never raised. A lost connection or a
 protective/emergency stop stops the arm and raises (`ConnectionLostError` / `RobotStoppedError`).
 """
@@ -31,6 +31,9 @@ log = logging.getLogger(__name__)
 
 #: The object is put back this far above where it was grasped, so a slipped object is not pushed into the table.
 PLACE_CLEARANCE = 0.01
+#: Largest change of the finger gap (m) between closing and the end of the hold for a held grasp (the twin's
+#: `GraspSettings.max_slip`).
+MAX_SLIP = 0.010
 #: A reset retracts straight up first when the gripper is more than this below its home height.
 RETRACT_TOLERANCE = 0.02
 #: The perception box reaches this far below the table top, so the table plane can be measured.
@@ -51,6 +54,20 @@ def _translated(T: np.ndarray, offset_world: np.ndarray | None = None, along_z: 
     if offset_world is not None:
         out[:3, 3] += offset_world
     return out
+
+
+def judge_hold(closed_on_object: bool, held: bool, width_closed: float, width_held: float) -> str:
+    """The failure the real cell can see from its gripper (`seggrasp.cell.FAILURES`; "" = success).
+
+    It knows whether the fingers stopped on an object when closing (`empty_close` if not), whether they still
+    hold one after lift and hold (`slipped` if not), and the finger gap: when it changed by more than
+    `MAX_SLIP` the object moved in the fingers (`slipped`). A rotation about the grasp axis leaves the gap
+    unchanged, so the real cell cannot report `rotated` (the twin can)."""
+    if not closed_on_object:
+        return "empty_close"
+    if not held or abs(width_held - width_closed) > MAX_SLIP:
+        return "slipped"
+    return ""
 
 
 class RealCell:
@@ -206,7 +223,7 @@ class RealCell:
             self.arm.move_linear(grasp, motion.tool_speed, motion.tool_acceleration)
         except (SafetyError, MotionError) as exc:
             log.warning("grasp not reached while %s: %s", stage, exc)
-            return self._not_reached(f"{stage}: {exc}")
+            return self._not_reached(f"{stage}: {exc}", failure="collision")
         except HardwareError as exc:
             raise self._abort(stage, exc) from exc
 
@@ -231,13 +248,16 @@ class RealCell:
         except HardwareError as exc:
             raise self._abort(stage, exc) from exc
 
+        failure = "" if self.dry_run else judge_hold(grip.object_detected, held, grip.width, width_held)
         message = ("dry run: motions planned and logged, nothing moved" if self.dry_run else
                    f"object {'held' if held else 'not held'} after a {motion.hold_time:.1f} s hold "
-                   f"(closed on an object: {grip.object_detected}, finger gap {width_held * 1000:.1f} mm)")
+                   f"(closed on an object: {grip.object_detected}, finger gap {width_held * 1000:.1f} mm)"
+                   + (f": {failure}" if failure else ""))
         log.info("grasp outcome: %s", message)
-        return GraspOutcome(reachable=True, lifted=held, lift_height=motion.lift_height if held else 0.0,
+        lifted = held and not failure
+        return GraspOutcome(reachable=True, lifted=lifted, lift_height=motion.lift_height if lifted else 0.0,
                             contact_force=cfg.gripper.force if held else 0.0, contacts_observed=False,
-                            message=message)
+                            message=message, failure=failure)
 
     def close(self) -> None:
         """Stop the cameras, close the gripper socket and shut down the RTDE connection. Idempotent."""
@@ -268,10 +288,10 @@ class RealCell:
             return f"refused by the safety limits: {exc}"
         return ""
 
-    def _not_reached(self, message: str) -> GraspOutcome:
+    def _not_reached(self, message: str, failure: str = "unreachable") -> GraspOutcome:
         log.warning("grasp not executed: %s", message)
         return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, contacts_observed=False,
-                            message=message)
+                            message=message, failure=failure)
 
     def _abort(self, stage: str, exc: HardwareError) -> HardwareError:
         """Stop the arm and turn a hardware failure into an error that says what the cell was doing."""

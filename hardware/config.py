@@ -200,7 +200,7 @@ def _parse_gripper(r: FieldReader, data: dict, robot_ip: str) -> GripperConfig:
         closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
         timeout=r.number(section, "timeout", p, 5.0, positive=True),
         speed=r.number(section, "speed", p, 0.05, low=FINGER_SPEED_RANGE[0], high=FINGER_SPEED_RANGE[1]),
-        force=r.number(section, "force", p, 40.0, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
+        force=r.number(section, "force", p, 100.0, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
         tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
         closing_shift=r.number(section, "closing_shift", p, 0.0),
     )

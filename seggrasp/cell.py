@@ -25,6 +25,13 @@ class Frame:
     T_world_cam: np.ndarray  # (4, 4) camera (OpenCV) -> world
 
 
+#: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting, shared by the twin
+#: (`sim.gripper.GripperSettings`), the grasp sampler's torque limit and the real cell (hardware/cell.example.yaml
+#: `gripper.force`, at the example's `limits.max_grip_force`). At 40 N mug, knife and hammer handles turn in the
+#: fingers under their own weight.
+GRIP_FORCE_RANGE = (20.0, 235.0)
+DEFAULT_GRIP_FORCE = 100.0
+
 # Why a trial failed. The cell names the physical failures; the harness adds `no_grasp` (the method planned no
 # grasp for the slot) and `wrong_part` (held, but on another part than the prompted one). "" means success.
 FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp")

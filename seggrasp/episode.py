@@ -1,89 +1,40 @@
-"""The episode runner shared by the simulated and the real backend.
+"""The episode: the one piece of code `python -m sim.evaluate`, the gym env `SegGrasp-v0` and the real cell run.
 
-One episode for one object: reset the cell, get the object's mesh (the cell's own, or reconstructed from its
-cameras), segment it into the prompted parts with a method, sample grasps on the mesh, keep per prompt the top-k
-grasps on the faces labelled with that prompt, move them into the world (`T_world_obj @ T_obj_grasp`) and execute
-each one from a fresh reset of the same scene. Every trial becomes one `TrialRecord`.
+One episode for one object in one scene: reset the cell, get the object's mesh (the cell's own, or reconstructed
+from its cameras), let a method (seggrasp/method.py) label it into the prompted parts, sample grasps on the mesh,
+keep per prompt the top-k grasps on the faces labelled with that prompt, move them into the world
+(`T_world_obj @ T_obj_grasp`) and execute each one from a fresh reset of the same scene. Every trial slot becomes one
+`TrialRecord`. A harness chooses the cell, the detector (`seggrasp.truth.DetectorSpec`) and, for a labelled object,
+the ground truth (`seggrasp.truth.GroundTruth`), and passes them in.
 
-Methods (every record names its method and its detector):
-
-- `seggrasp`: the full method: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + prompt
-  anchoring (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part) give the labels; grasps are selected
-  only where those labels agree with the coarse votes' argmax (`seggrasp.fusion.agreed_labels`), so that a wrong
-  anchor or a wrong fused label does not send grasps to the wrong part (the paper selects on its labels alone).
-  Measured without the simulator (twin, `typical`, 4 run seeds, antipodal grasps, top-10 per prompt, both contacts
-  on the true part): Part Sel. coarse 0.681, GeoFusion 0.671, anchored 0.628, anchored where it agrees with the
-  votes 0.812 (with GeoFusion instead of the votes 0.757), on-part grasps per slot 0.436 / 0.441 / 0.544 / 0.450;
-- `coarse`: coarse voting only (the paper's baseline), the same grasps;
-- `multi`, `opt`, `geofusion`: the ablations (multi-fusion only, fine-grained optimisation only, both = the paper's
-  GeoFusion); `anchored`: GeoFusion + anchoring, grasps selected on its labels alone;
-- `spread`: GeoSpreading (the paper's single-decomposition spreading), for the threshold study;
-- `oracle`: the ground-truth labels (needs a labelled object), the ceiling;
-- `shapegrasp`: seggrasp/baselines.py (convex parts, top-down grasp at the chosen part's centroid).
-
-Ground truth, when the object has labels: a trial's `contacts_on_part` says whether both planned finger contacts
-lie on faces whose true label is the prompt (Part Sel.); `touched_on_part` whether most faces the pads actually
-touched are on it; `success` = lifted and touched the part (contacts as planned when the backend cannot observe
-them).
+Scoring, when there is ground truth: a trial's `contacts_on_part` says whether both planned finger contacts lie on
+faces whose true label is the prompt (Part Sel.); `touched_on_part` whether the true part carries most of what the
+pads touched; `success` = lifted and touched the part (contacts as planned when the backend cannot observe them);
+`failure` names why a trial failed (`seggrasp.cell.FAILURES`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import logging
 from dataclasses import asdict, dataclass, field
-from typing import Callable, Sequence
+from typing import Callable, NamedTuple, Protocol, Sequence
 
 import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.cell import Cell, GraspOutcome
-from seggrasp.decompose import DecompositionConfig, Partition, decompose_sweep
-from seggrasp.detect import make_detector
-from seggrasp.detect.base import Detector
-from seggrasp.fusion import agreed_labels, coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.select import TOP_K
-from seggrasp.labels import PartLabels
-from seggrasp.mesh import prepare_mesh
+from seggrasp.labels import prompt_index
+from seggrasp.mesh import mesh_hash, prepare_mesh
+from seggrasp.method import ORACLE, ObjectSegmenter, PartPlan, check_method
 from seggrasp.objects import ObjectModel
-from seggrasp.segment import SegmentationConfig, segment
-from seggrasp.vote import labels_from_scores
+from seggrasp.truth import DetectorSpec, GroundTruth
 
 LOG = logging.getLogger(__name__)
-
-#: (refinement mode of `seggrasp.fusion.refine_scores`, prompt anchoring, grasps only where the labels agree with the
-#: coarse votes) of every method that labels by votes.
-REFINEMENT_OF_METHOD = {
-    "coarse": ("none", False, False), "multi": ("multi", False, False), "opt": ("opt", False, False),
-    "geofusion": ("full", False, False), "anchored": ("full", True, False), "seggrasp": ("full", True, True),
-    "spread": ("spread", False, False),
-}
-METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "spread", "oracle", "shapegrasp")
-
-
-@dataclass(frozen=True)
-class DetectorSpec:
-    """How to build the detector for an object: `name` as `make_detector` takes it; `preset`/`seed` for the
-    simulated detector (which needs the object's ground-truth labels), `weights` for the real ones."""
-
-    name: str = "simulated"
-    preset: str = "typical"
-    weights: str | None = None
-    seed: int = 0
-
-    @property
-    def label(self) -> str:
-        """How results name the detector, e.g. `simulated:typical` or `owlv2`."""
-        return f"{self.name}:{self.preset}" if self.name == "simulated" else self.name
-
-    def build(self, gt_labels: PartLabels | None) -> Detector:
-        """The detector; `gt_labels` (one per face of the rendered working mesh) is required for `simulated`."""
-        if self.name == "simulated" and gt_labels is None:
-            raise ValueError("the simulated detector needs ground-truth labels; this object has none")
-        return make_detector(self.name, weights=self.weights, gt_labels=gt_labels, preset=self.preset, seed=self.seed)
 
 
 @dataclass
@@ -96,15 +47,55 @@ class Observation:
 
 
 @dataclass
-class PartPlan:
-    """A method's per-face labels on the planning mesh, the labels its grasps are selected on (None: `labels`) and,
-    for `shapegrasp`, its own grasps per prompt."""
+class EpisodeContext:
+    """What the harness says about the object: its name, category, the prompts and the scene seed, and, when it
+    knows them (the twin), the object's centre of mass (object frame) and mass for the grasp sampler."""
+
+    object_id: str
+    category: str
+    prompts: list[str]
+    scene_seed: int
+    center_of_mass: np.ndarray | None = None
+    mass: float | None = None
+
+    @classmethod
+    def from_object(cls, model: ObjectModel, scene_seed: int, prompts: Sequence[str] | None = None) -> "EpisodeContext":
+        """Context for a twin object (its own prompts unless given)."""
+        prompts = list(prompts) if prompts is not None else list(model.prompts)
+        return cls(model.object_id, model.category, prompts, scene_seed, model.center_of_mass, model.mass)
+
+
+@dataclass(frozen=True)
+class EpisodeSettings:
+    """How an episode runs: the grasp-sampling and decomposition seed, grasps per prompt, whether the mesh is
+    perceived from the cameras (inside `workspace`), and where/how decompositions are computed."""
+
+    seed: int = 0
+    top_k: int = TOP_K
+    perceive: bool = False
+    workspace: object | None = None  # seggrasp.perception.Workspace when perceiving
+    decomposition_cache: str | None = None
+    decomposition_workers: int | None = None
+
+
+class VoteStore(Protocol):
+    """Where a harness keeps coarse votes between runs (e.g. `sim.evaluate.records.VoteCache`)."""
+
+    def load(self, key: str, shape: tuple[int, int]) -> np.ndarray | None: ...
+
+    def save(self, key: str, scores: np.ndarray) -> None: ...
+
+
+class Slot(NamedTuple):
+    """One trial slot: the `rank`-th grasp a method chose for prompt `prompt_index` (world frame; None when the
+    method had fewer grasps on the part than slots) among `n_candidates`."""
 
     method: str
     detector: str
-    labels: np.ndarray
-    own_grasps: list[GraspSet] | None = None
-    grasp_labels: np.ndarray | None = None
+    prompt_index: int
+    rank: int
+    grasp: GraspSet | None
+    n_candidates: int
 
 
 @dataclass
@@ -135,6 +126,7 @@ class TrialRecord:
     success: bool | None = None
     reused_outcome: bool = False
     message: str = ""
+    failure: str = ""
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -161,100 +153,6 @@ def observe(cell: Cell, perceive: bool = False, workspace=None) -> Observation:
     return Observation(mesh, np.asarray(T_world_obj, dtype=np.float64))
 
 
-def transfer_labels(
-    source_mesh: trimesh.Trimesh, source_labels: np.ndarray, target_mesh: trimesh.Trimesh, T_source_target: np.ndarray
-) -> np.ndarray:
-    """Labels of `target_mesh`'s faces from the nearest face of `source_mesh` (e.g. the twin -> a perceived mesh)."""
-    centres = target_mesh.triangles_center @ T_source_target[:3, :3].T + T_source_target[:3, 3]
-    _, _, nearest = trimesh.proximity.closest_point(source_mesh, centres)
-    return np.asarray(source_labels, dtype=np.int64)[nearest]
-
-
-class ObjectSegmenter:
-    """Segments one mesh for several methods, sharing the coarse votes and the decomposition sweep.
-
-    The coarse votes come from `seggrasp.segment.segment` (refine="none") and are lifted to `mesh`'s face order;
-    the decomposition sweep and the fusion then run on `mesh` itself, in its own face order, which is the mesh the
-    bundled decomposition caches (assets/decompositions/) were computed for. `gt_labels` (prompt indices per face
-    of `mesh`, -1 elsewhere) feed the simulated detector and the oracle; `coarse_scores` (from an earlier run with
-    the same object, detector and seed) skips rendering and detection, `partitions` (finest first) the decomposition
-    sweep. `seed` seeds the decomposition sweep; the camera rig and the detector's draws follow `detector.seed`.
-    """
-
-    def __init__(
-        self,
-        mesh: trimesh.Trimesh,
-        prompts: Sequence[str],
-        detector: DetectorSpec,
-        gt_labels: np.ndarray | None = None,
-        seed: int = 0,
-        decomposition_cache: str | None = None,
-        coarse_scores: np.ndarray | None = None,
-        decomposition_workers: int | None = None,
-        partitions: list[Partition] | None = None,
-    ) -> None:
-        self.mesh = mesh
-        self.prepared = prepare_mesh(mesh.vertices, mesh.faces, name="object")
-        self.prompts = list(prompts)
-        self.detector = detector
-        self.gt_labels = None if gt_labels is None else np.asarray(gt_labels, dtype=np.int64)
-        self.seed = seed
-        self.decomposition_cache = decomposition_cache
-        self.decomposition_workers = decomposition_workers
-        self._coarse = None if coarse_scores is None else np.asarray(coarse_scores, dtype=np.float64)
-        self._partitions = partitions
-
-    def coarse_scores(self) -> np.ndarray:
-        """The (F, P) coarse vote matrix S in `mesh`'s face order (computed once)."""
-        if self._coarse is None:
-            gt = None
-            if self.gt_labels is not None:
-                gt = PartLabels(self.prompts, self.prepared.from_source(self.gt_labels))
-            detector = self.detector.build(gt)
-            # The camera rig is part of what the detector sees: it follows the detector's seed.
-            config = SegmentationConfig(refine="none", seed=self.detector.seed)
-            result = segment(self.prepared, self.prompts, detector, config)
-            self._coarse = np.asarray(result.coarse_scores, dtype=np.float64)
-        return self._coarse
-
-    def partitions(self) -> list[Partition]:
-        """`mesh`'s distinct decompositions, finest first (cached on disk by seggrasp.decompose)."""
-        if self._partitions is None:
-            config = DecompositionConfig(seed=self.seed)
-            self._partitions = decompose_sweep(
-                self.mesh, config, cache_dir=self.decomposition_cache, workers=self.decomposition_workers
-            )
-        return self._partitions
-
-    def refined_scores(self, mode: str, partitions: list[Partition] | None = None) -> np.ndarray:
-        """Coarse votes refined with one of `seggrasp.fusion.REFINE_MODES` (over `partitions`, default all),
-        in `mesh`'s face order."""
-        scores = self.coarse_scores()
-        if mode == "none":
-            return scores
-        parts = self.partitions() if partitions is None else partitions
-        return refine_scores(scores, parts, self.mesh.area_faces, mode)
-
-    def plan(self, method: str, T_world_obj: np.ndarray) -> PartPlan:
-        """Face labels (and, for shapegrasp, grasps) of `method` on this mesh."""
-        if method not in METHODS:
-            raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
-        if method == "oracle":
-            if self.gt_labels is None:
-                raise ValueError("the oracle method needs ground-truth labels; this object has none")
-            return PartPlan(method, "ground-truth", self.gt_labels.copy())
-        if method == "shapegrasp":
-            part_of_face = coarsest_with_parts(self.partitions(), len(self.prompts)).part_of_face
-            votes = part_mean_scores(self.coarse_scores(), part_of_face, self.mesh.area_faces)
-            grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)
-            return PartPlan(method, self.detector.label, shapegrasp_labels(votes, part_of_face), grasps)
-        mode, anchor, on_agreement = REFINEMENT_OF_METHOD[method]
-        partitions = [] if mode == "none" else self.partitions()
-        _, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, mode, anchor)
-        grasp_labels = agreed_labels(labels, labels_from_scores(self.coarse_scores())) if on_agreement else None
-        return PartPlan(method, self.detector.label, labels, grasp_labels=grasp_labels)
-
-
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
     """Content key of a world grasp (for reusing outcomes of a deterministic backend)."""
     digest = hashlib.sha1(np.round(np.asarray(T_world_grasp, dtype=np.float64), 6).tobytes())
@@ -262,67 +160,15 @@ def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
     return digest.hexdigest()
 
 
-def ground_truth_on_part(
-    contacts_obj: np.ndarray, gt_mesh: trimesh.Trimesh, gt_labels: np.ndarray, prompt_index: int
-) -> np.ndarray:
-    """(N,) both contacts (object frame, (N, 2, 3)) nearest to a face whose true label is `prompt_index`."""
-    contacts_obj = np.asarray(contacts_obj, dtype=np.float64).reshape(-1, 2, 3)
-    _, _, nearest = trimesh.proximity.closest_point(gt_mesh, contacts_obj.reshape(-1, 3))
-    faces = np.asarray(nearest, dtype=np.int64).reshape(-1, 2)
-    return (np.asarray(gt_labels)[faces] == prompt_index).all(axis=1)
-
-
-def touched_part(outcome: GraspOutcome, gt_labels: np.ndarray | None, prompt_index: int) -> bool | None:
-    """Whether the prompt's true part carries most of what the pads touched (None if unknown or unobserved).
-
-    Each touched face counts with its `touched_weights` entry (contact force or area) when the cell reports them,
-    else with weight one.
-    """
-    if gt_labels is None or not outcome.contacts_observed:
-        return None
-    touched = np.asarray(outcome.touched_faces, dtype=np.int64)
-    if len(touched) == 0:
-        return False
-    weights = np.asarray(outcome.touched_weights, dtype=np.float64)
-    if len(weights) != len(touched) or weights.sum() <= 0:
-        weights = np.ones(len(touched))
-    on_part = np.asarray(gt_labels)[touched] == prompt_index
-    return bool(weights[on_part].sum() >= 0.5 * weights.sum())
-
-
-@dataclass
-class EpisodeContext:
-    """Everything about the object an episode needs besides the cell."""
-
-    object_id: str
-    category: str
-    prompts: list[str]
-    scene_seed: int
-    gt_mesh: trimesh.Trimesh | None = None  # the labelled mesh (object frame), for ground-truth checks
-    gt_labels: np.ndarray | None = None  # prompt index per face of gt_mesh, -1 elsewhere
-
-    @classmethod
-    def from_object(cls, model: ObjectModel, scene_seed: int, prompts: Sequence[str] | None = None) -> "EpisodeContext":
-        """Context for a twin object (its prompts and, when labelled, its ground truth)."""
-        prompts = list(prompts) if prompts is not None else list(model.prompts)
-        gt = model.labels.remap_to(prompts) if model.labels is not None else None
-        return cls(model.object_id, model.category, prompts, scene_seed, model.mesh, gt)
-
-
-def plan_trials(
-    context: EpisodeContext,
-    observation: Observation,
-    plan: PartPlan,
-    grasps: GraspSet,
-    targets: Sequence[int],
-    top_k: int = TOP_K,
-) -> list[tuple[int, int, GraspSet | None, int]]:
-    """(prompt index, rank, world grasp or None, n_candidates) for each of the top-k slots of each target prompt."""
+def plan_slots(
+    plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int
+) -> list[Slot]:
+    """The top-k slots of each target prompt: the plan's own grasps (shapegrasp) or the best of `grasps` on the
+    faces the plan selects on, moved into the world."""
     if plan.own_grasps is not None:
-        per_prompt = [plan.own_grasps[k] for k in range(len(context.prompts))]
+        per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
-        labels = plan.labels if plan.grasp_labels is None else plan.grasp_labels
-        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, labels, len(context.prompts), top_k)
+        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:
@@ -330,141 +176,216 @@ def plan_trials(
         for rank in range(top_k):
             if plan.own_grasps is not None and len(chosen):
                 # shapegrasp plans one grasp per part: every slot executes it again, as repeated trials
-                slots.append((k, rank, chosen.subset([rank % len(chosen)]), len(chosen)))
-            elif rank < len(chosen):
-                slots.append((k, rank, chosen.subset([rank]), len(chosen)))
+                grasp = chosen.subset([rank % len(chosen)])
             else:  # fewer grasps on the part than slots: the missing ones count as failures
-                slots.append((k, rank, None, len(chosen)))
+                grasp = chosen.subset([rank]) if rank < len(chosen) else None
+            slots.append(Slot(plan.method, plan.detector, k, rank, grasp, len(chosen)))
     return slots
 
 
-def execute_slot(
-    cell: Cell,
-    context: EpisodeContext,
-    observation: Observation,
-    plan: PartPlan,
-    slot: tuple[int, int, GraspSet | None, int],
-    seed: int,
-    outcome_cache: dict | None = None,
-) -> TrialRecord:
-    """Reset the scene and execute one slot's grasp (or record that the method found none)."""
-    k, rank, grasp, n_candidates = slot
-    record = TrialRecord(
-        object_id=context.object_id, category=context.category, method=plan.method, detector=plan.detector,
-        prompt=context.prompts[k], prompt_index=k, rank=rank, seed=seed, scene_seed=context.scene_seed,
-        n_candidates=n_candidates, executed=False,
-    )
-    if grasp is None:
-        record.contacts_on_part = False if context.gt_labels is not None else None
-        record.success = False if context.gt_labels is not None else None
-        record.message = "no grasp on the selected part"
-        return record
-    T_world_grasp, width = grasp.poses[0], float(grasp.widths[0])
-    record.grasp_score = float(grasp.scores[0])
-    record.width = width
-    record.T_world_grasp = np.round(T_world_grasp, 6).tolist()
-    record.quaternion_xyzw = Rotation.from_matrix(T_world_grasp[:3, :3]).as_quat().tolist()
-    T_obj_world = np.linalg.inv(observation.T_world_obj)
-    if context.gt_labels is not None:
-        # contacts in the labelled mesh's frame: a perceived mesh lives in the world, the twin in the object frame
-        T_gt_world = T_obj_world if not observation.perceived else np.linalg.inv(true_object_pose(cell))
-        contacts = grasp.contacts[0] @ T_gt_world[:3, :3].T + T_gt_world[:3, 3]
-        record.contacts_on_part = bool(ground_truth_on_part(contacts[None], context.gt_mesh, context.gt_labels, k)[0])
-    key = grasp_key(T_world_grasp, width)
-    if outcome_cache is not None and key in outcome_cache:
-        outcome = outcome_cache[key]
-        record.reused_outcome = True
-    else:
-        cell.reset(seed=context.scene_seed, object_id=context.object_id)
-        outcome = cell.execute(T_world_grasp, width)
-        if outcome_cache is not None:
-            outcome_cache[key] = outcome
-    record.executed = True
-    record.reachable = bool(outcome.reachable)
-    record.lifted = bool(outcome.lifted)
-    record.lift_height = float(outcome.lift_height)
-    record.outcome = outcome.to_json()
-    record.message = outcome.message
-    record.touched_on_part = touched_part(outcome, context.gt_labels, k)
-    if context.gt_labels is not None:
-        on_part = record.touched_on_part if record.touched_on_part is not None else record.contacts_on_part
-        record.success = bool(outcome.lifted and on_part)
-    return record
+def failure_of(outcome: GraspOutcome | None, success: bool | None, on_part: bool | None) -> str:
+    """The failure name of a trial (`seggrasp.cell.FAILURES`): `no_grasp` without an outcome, the cell's own
+    failure, `wrong_part` for a lift on another part than the prompted one; "" for a success or when unknown."""
+    if outcome is None:
+        return "no_grasp"
+    if outcome.failure:
+        return outcome.failure
+    if outcome.lifted and on_part is False and not success:
+        return "wrong_part"
+    return ""
 
 
-def true_object_pose(cell: Cell) -> np.ndarray:
-    """The labelled twin's pose in the world, for scoring a perceived mesh (only a simulator knows it)."""
-    _, T_world_obj = cell.object_mesh()
-    return np.asarray(T_world_obj, dtype=np.float64)
-
-
-def run_episode(
-    cell: Cell,
-    context: EpisodeContext,
-    method: str,
-    detector: DetectorSpec,
-    *,
-    targets: Sequence[str] | None = None,
-    seed: int = 0,
-    perceive: bool = False,
-    workspace=None,
-    generator: GraspGenerator | None = None,
-    top_k: int = TOP_K,
-    decomposition_cache: str | None = None,
-    outcome_cache: dict | None = None,
-    on_record: Callable[[TrialRecord], None] | None = None,
-) -> list[TrialRecord]:
-    """Segment, select and execute the top-k grasps for each target prompt (default: all of the context's prompts).
+class Episode:
+    """One object in one scene: observe once, plan per method, execute slots; every backend runs this.
 
     `outcome_cache` (a dict) lets a deterministic backend reuse the outcome of an identical grasp from the same
-    scene; pass None on real hardware. `on_record` is called with each record as soon as it exists.
+    scene (pass None on real hardware); `vote_cache` keeps coarse votes under `votes_key()` (the planning mesh,
+    the prompts in order and the detector), so a later run on the same input skips rendering and detection.
     """
-    target_indices = _target_indices(context.prompts, targets)
-    cell.reset(seed=context.scene_seed, object_id=context.object_id)
-    observation = observe(cell, perceive=perceive, workspace=workspace)
-    gt_on_mesh = ground_truth_on_mesh(cell, context, observation)
-    segmenter = ObjectSegmenter(
-        observation.mesh, context.prompts, detector, gt_on_mesh, seed=seed, decomposition_cache=decomposition_cache
-    )
-    plan = segmenter.plan(method, observation.T_world_obj)
-    grasps = GraspSet.empty()
-    if plan.own_grasps is None:
-        generator = generator or AntipodalSampler()
-        plane = table_plane_in_object_frame(observation.mesh, observation.T_world_obj)
-        grasps = generator.generate(observation.mesh, seed=seed, table_plane=plane)
-    records = []
-    for slot in plan_trials(context, observation, plan, grasps, target_indices, top_k):
-        record = execute_slot(cell, context, observation, plan, slot, seed, outcome_cache)
-        records.append(record)
-        if on_record is not None:
-            on_record(record)
-    return records
 
+    def __init__(
+        self,
+        cell: Cell,
+        context: EpisodeContext,
+        detector: DetectorSpec | None = None,
+        truth: GroundTruth | None = None,
+        settings: EpisodeSettings = EpisodeSettings(),
+        *,
+        generator: GraspGenerator | None = None,
+        vote_cache: VoteStore | None = None,
+        outcome_cache: dict | None = None,
+    ) -> None:
+        self.cell, self.context, self.detector, self.truth, self.settings = cell, context, detector, truth, settings
+        self.generator = generator or AntipodalSampler()
+        self.vote_cache = vote_cache
+        self.outcome_cache = outcome_cache
+        self._observation: Observation | None = None
+        self._truth_on_mesh: np.ndarray | None = None
+        self._segmenter: ObjectSegmenter | None = None
+        self._grasps: GraspSet | None = None
 
-def _target_indices(prompts: Sequence[str], targets: Sequence[str] | None) -> list[int]:
-    if targets is None:
-        return list(range(len(prompts)))
-    lowered = [p.lower() for p in prompts]
-    indices = []
-    for target in targets:
-        if target.lower() not in lowered:
-            raise ValueError(f"target prompt {target!r} is not among the prompts {list(prompts)}")
-        indices.append(lowered.index(target.lower()))
-    return indices
+    @property
+    def observation(self) -> Observation:
+        """The planning mesh (the scene is reset and observed on first use)."""
+        if self._observation is None:
+            self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
+            s = self.settings
+            self._observation = observe(self.cell, perceive=s.perceive, workspace=s.workspace)
+            if self.truth is not None:
+                o = self._observation
+                self._truth_on_mesh = self.truth.on_mesh(o.mesh, o.T_world_obj, o.perceived, self.context.object_id)
+        return self._observation
 
+    @property
+    def truth_on_mesh(self) -> np.ndarray | None:
+        """True prompt index per face of the planning mesh (None without ground truth)."""
+        _ = self.observation
+        return self._truth_on_mesh
 
-def ground_truth_on_mesh(cell: Cell, context: EpisodeContext, observation: Observation) -> np.ndarray | None:
-    """Ground-truth prompt labels per face of the planning mesh (transferred from the twin when the mesh was
-    perceived; None when the object has no labels)."""
-    if context.gt_labels is None:
-        return None
-    if not observation.perceived:
-        if len(observation.mesh.faces) != len(context.gt_labels):
-            raise ValueError(
-                f"{context.object_id}: the cell's mesh has {len(observation.mesh.faces)} faces but the labels "
-                f"{len(context.gt_labels)}"
+    @property
+    def segmenter(self) -> ObjectSegmenter:
+        """The method's segmenter on the planning mesh; the detector is built only when votes must be computed."""
+        if self._segmenter is None:
+            if self.detector is None:
+                raise ValueError("this episode was given no detector: it can execute grasps but not segment")
+            mesh = self.observation.mesh
+            prepared = prepare_mesh(mesh.vertices, mesh.faces, name="object")
+            shape = (len(mesh.faces), len(self.context.prompts))
+            coarse = self.vote_cache.load(self.votes_key(), shape) if self.vote_cache is not None else None
+            detector = None
+            if coarse is None:
+                detector = self.detector.for_mesh(self.context.prompts, prepared, self.truth_on_mesh)
+            self._segmenter = ObjectSegmenter(
+                mesh, self.context.prompts, detector, self.detector.label, seed=self.settings.seed,
+                view_seed=self.detector.seed, prepared=prepared, coarse_scores=coarse,
+                decomposition_cache=self.settings.decomposition_cache,
+                decomposition_workers=self.settings.decomposition_workers,
             )
-        return context.gt_labels
-    T_obj_world = np.linalg.inv(true_object_pose(cell))
-    return transfer_labels(context.gt_mesh, context.gt_labels, observation.mesh, T_obj_world)
+        return self._segmenter
 
+    def votes_key(self) -> str:
+        """Content key of the coarse votes: planning mesh, prompts in order, detector settings."""
+        payload = {"mesh": mesh_hash(self.observation.mesh), "prompts": list(self.context.prompts),
+                   "detector": dict(asdict(self.detector), kind=type(self.detector).__name__)}
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode("utf-8")).hexdigest()
+
+    def coarse_scores(self) -> np.ndarray:
+        """The coarse votes on the planning mesh (computed once; stored in the vote cache when there is one)."""
+        segmenter = self.segmenter
+        if not segmenter.has_coarse_scores:
+            scores = segmenter.coarse_scores()
+            if self.vote_cache is not None:
+                self.vote_cache.save(self.votes_key(), scores)
+        return segmenter.coarse_scores()
+
+    def plan(self, method: str) -> PartPlan:
+        """`method`'s labels on the planning mesh (`oracle`: the ground truth's)."""
+        check_method(method)
+        if method == ORACLE:
+            if self.truth is None:
+                raise ValueError("the oracle method needs ground-truth labels; this object has none")
+            return self.truth.oracle_plan(self.truth_on_mesh)
+        self.coarse_scores()
+        return self.segmenter.plan(method, self.observation.T_world_obj)
+
+    def grasps(self) -> GraspSet:
+        """Grasp candidates on the planning mesh, object frame (sampled once)."""
+        if self._grasps is None:
+            o = self.observation
+            plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
+            if isinstance(self.generator, AntipodalSampler) and not o.perceived:
+                # the twin's own mesh: the sampler's gravity-torque term gets the true centre of mass and mass;
+                # on a perceived mesh it estimates them at uniform density, as the real cell does
+                self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane,
+                                                       center_of_mass=self.context.center_of_mass,
+                                                       mass=self.context.mass)
+            else:
+                self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane)
+        return self._grasps
+
+    def target_indices(self, targets: Sequence[str] | None) -> list[int]:
+        """Prompt indices of `targets` (default: every prompt)."""
+        if targets is None:
+            return list(range(len(self.context.prompts)))
+        return [prompt_index(self.context.prompts, t, "prompts") for t in targets]
+
+    def slots(self, plan: PartPlan, targets: Sequence[str] | None = None) -> list[Slot]:
+        """The plan's top-k slots for each target prompt."""
+        indices = self.target_indices(targets)
+        grasps = GraspSet.empty() if plan.own_grasps is not None else self.grasps()
+        return plan_slots(plan, grasps, self.observation, len(self.context.prompts), indices, self.settings.top_k)
+
+    def run(
+        self,
+        method: str,
+        targets: Sequence[str] | None = None,
+        skip: Callable[[Slot], bool] | None = None,
+        on_record: Callable[[TrialRecord], None] | None = None,
+    ) -> list[TrialRecord]:
+        """Plan `method` and execute its slots for each target prompt (those `skip` accepts are left out)."""
+        records = []
+        for slot in self.slots(self.plan(method), targets):
+            if skip is not None and skip(slot):
+                continue
+            record = self.execute(slot)
+            records.append(record)
+            if on_record is not None:
+                on_record(record)
+        return records
+
+    def execute(self, slot: Slot, reset: bool = True) -> TrialRecord:
+        """Execute one slot's grasp (from a fresh reset of the scene unless `reset` is False) and score it."""
+        context = self.context
+        record = TrialRecord(
+            object_id=context.object_id, category=context.category, method=slot.method, detector=slot.detector,
+            prompt=context.prompts[slot.prompt_index], prompt_index=slot.prompt_index, rank=slot.rank,
+            seed=self.settings.seed, scene_seed=context.scene_seed, n_candidates=slot.n_candidates, executed=False,
+        )
+        if slot.grasp is None:
+            record.contacts_on_part = record.success = False if self.truth is not None else None
+            record.message = "no grasp on the selected part"
+            record.failure = failure_of(None, None, None)
+            return record
+        T_world_grasp, width = slot.grasp.poses[0], float(slot.grasp.widths[0])
+        score = float(slot.grasp.scores[0])
+        record.grasp_score = score if np.isfinite(score) else None
+        record.width = width
+        record.T_world_grasp = np.round(T_world_grasp, 6).tolist()
+        record.quaternion_xyzw = Rotation.from_matrix(T_world_grasp[:3, :3]).as_quat().tolist()
+        contacts = slot.grasp.contacts[0]
+        if self.truth is not None and np.isfinite(contacts).all():
+            o = self.observation
+            record.contacts_on_part = self.truth.contacts_on_part(contacts, o.T_world_obj, o.perceived,
+                                                                  slot.prompt_index)
+        outcome = self._outcome(T_world_grasp, width, reset, record)
+        record.executed = True
+        record.reachable = bool(outcome.reachable)
+        record.lifted = bool(outcome.lifted)
+        record.lift_height = float(outcome.lift_height)
+        record.outcome = outcome.to_json()
+        record.message = outcome.message
+        on_part = None
+        if self.truth is not None:
+            record.touched_on_part = self.truth.touched_on_part(outcome, slot.prompt_index)
+            on_part = record.touched_on_part if record.touched_on_part is not None else record.contacts_on_part
+            record.success = bool(outcome.lifted and on_part)
+        record.failure = failure_of(outcome, record.success, on_part)
+        return record
+
+    def _outcome(self, T_world_grasp: np.ndarray, width: float, reset: bool, record: TrialRecord) -> GraspOutcome:
+        key = grasp_key(T_world_grasp, width)
+        if self.outcome_cache is not None and key in self.outcome_cache:
+            record.reused_outcome = True
+            return self.outcome_cache[key]
+        if reset:
+            self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
+        outcome = self.cell.execute(T_world_grasp, width)
+        if self.outcome_cache is not None:
+            self.outcome_cache[key] = outcome
+        return outcome
+
+
+def action_slot(prompt_index: int, T_world_grasp: np.ndarray, width: float, method: str = "action") -> Slot:
+    """A slot for a grasp given from outside (the gym env's action): no planned contacts, no score."""
+    grasp = GraspSet(np.asarray(T_world_grasp, dtype=np.float64)[None], [width], [np.nan], np.full((1, 2, 3), np.nan))
+    return Slot(method, "policy", prompt_index, 0, grasp, 1)

@@ -21,41 +21,46 @@ the parts: every part of every decomposition votes with the area fractions of th
 face sums the votes of the parts that contain it, S_spread_i = sum_w h(k(i, th_w)), h_j(k) = (sum_{i in P(k),
 R0_i = j} a_i) / (sum_{i in P(k)} a_i). Faces with an unknown coarse label take part through their parts only.
 
-Normalisation of S_rev (`normalisation`). Measured with `python bench/bench_seg.py --rescore --normalisation N`
-on the partitions of a `--compare reference` run (twin objects hammer_claw and knife_chef, and knife_chef refined to
-31k faces; SimulatedDetector preset "typical", 10 views, 512 px, detector seeds 0-2), area-weighted mIoU averaged
-over meshes and seeds; coarse = 0.389. Values: multi / full, with the fast sweep and with the reference sweep.
-- "literal" (shipped): the formula above, 1/l times the area-weighted mean.   fast 0.416 / 0.479, ref 0.429 / 0.511
-  The 1/l factor weights a part's vote by the inverse of its size: small parts (which rarely straddle a part
-  boundary) pull their faces together, big parts (a one-piece coarse decomposition) add almost nothing. Multi-fusion
-  alone is a gain over coarse; the fine-grained optimisation carries most of it.
-- "area_mean": S_rev without 1/l.                                              fast 0.365 / 0.336, ref 0.371 / 0.402
-- "partition_mean": area-weighted mean / W (number of decompositions).          fast 0.385 / 0.396, ref 0.378 / 0.411
-  Without 1/l the coarse decompositions (one to three parts) add the object-wide mean score to every face and
-  pull faces to the majority label; multi-fusion then falls below coarse.
-So the literal reading is both the paper's formula and the best of the three here. (GeoSpreading on the same data:
-fast 0.499, reference 0.504.)
+Normalisation of S_rev (`normalisation`): "literal" (shipped) is the formula above, 1/l times the area-weighted
+mean; "area_mean" drops 1/l; "partition_mean" divides the area-weighted mean by W (the number of decompositions).
+The 1/l factor weights a part's vote by the inverse of its size: small parts (which rarely straddle a part
+boundary) pull their faces together, big parts (a one-piece coarse decomposition) add almost nothing. Without 1/l
+the coarse decompositions (one to three parts) add the object-wide mean score to every face and pull faces to the
+majority label, and multi-fusion falls below coarse voting. Measured by mIoU with `bench/bench_seg.py --rescore`
+on two twin objects: the literal reading is both the paper's formula and the best of the three (numbers in
+docs/results/fusion.md).
 
-Prompt anchoring (`anchor_prompts`; not in the paper; on by default: `SegmentationConfig.anchor`, `python -m
-seggrasp segment --no-anchor` turns it off). The argmax labelling lets a small part lose every face: boxes around a
+Prompt anchoring (`anchor_prompts`, anchoring mode "hard"; not in the paper; the default is the soft form below:
+`SegmentationConfig.anchor`, `python -m seggrasp segment --no-anchor` turns anchoring off). The argmax labelling lets a small part lose every face: boxes around a
 big part (or around the whole object, a detector's most common failure on part prompts) also cover the small part,
 so its faces collect more votes for the big part's prompt than for their own. On the twin with the `typical`
-detector (29 objects x 4 run seeds, per-object detector seeds, bundled fast sweeps) 49 of 244 prompted parts came
-out of full GeoFusion with no face at all, and a prompt without faces gets no grasp. Every prompt names a part the
+detector about a fifth of the prompted parts came out of full GeoFusion with no face at all (docs/results/fusion.md),
+and a prompt without faces gets no grasp. Every prompt names a part the
 object has, and a part is a geometric unit, so anchoring takes the coarsest decomposition with at least one part per
 prompt, turns each part's area-weighted mean scores into its distribution over the prompts (dividing by their sum,
 which removes how much the part was seen and boxed at all), scales each prompt's column by its best part, and gives
 every prompt its own part (the assignment with the largest summed scaled score, `assign_parts_to_prompts`); the
 faces of those parts take their prompt, every other face keeps its GeoFusion label.
-Measured (category-mean mIoU per run seed 0/1/2/3, mean; bundled fast sweeps of 2026-11-22): coarse
-0.385/0.436/0.437/0.430 (0.422), GeoFusion 0.436/0.599/0.551/0.545 (0.533), GeoFusion + anchoring
-0.549/0.775/0.693/0.749 (0.691); the ShapeGrasp baseline's labels (`seggrasp.baselines`, the same assignment on raw
-means) 0.538/0.769/0.699/0.748 (0.689). Alternatives: raw instead of distribution-normalised part means 0.685 (right
-part for 72.1 % of prompts vs 73.4 %), anchoring on the finest decomposition 0.570 (one small piece per prompt),
-per-prompt scaling of every face's scores 0.513.
+Measured (category-mean mIoU on the twin, `typical` detector, four run seeds, against coarse voting, GeoFusion,
+ShapeGrasp's labels and three alternative anchorings): docs/results/fusion.md.
 The assignment is still wrong for about a quarter of the prompts (the detector's evidence allows no better here), and
 a wrong anchor would send all of a prompt's grasps to the wrong part; `agreed_labels` guards the grasp selection
-against that (see `seggrasp.episode`).
+against that (see `seggrasp.method`).
+
+Soft anchoring (`soft_anchor_prompts`, anchoring mode "soft", the default of `refine_labels`). Hard anchoring is a
+gamble where the detector's evidence is weak: with two parts and two prompts whose part distributions are nearly
+equal the assignment is a coin flip, and a lost flip gives a whole part (sometimes most of the object) to the wrong
+prompt; on objects whose small part is no convex part at the coarsest level (a mug's handle split into pieces) it
+gives the small prompt a piece of the big part. The soft form turns the assignment into a prior instead of a
+verdict, on several levels instead of one: each face's refined scores become its distribution over the prompts
+(divided by their sum), and on each of the ANCHOR_LEVELS coarsest decompositions with a part per prompt the part
+assigned to a prompt (`assign_parts_to_prompts`, as above) adds ANCHOR_PRIOR / ANCHOR_LEVELS to that prompt's share
+on its faces; the label is the argmax of share plus priors. A face the fused evidence holds firmly for another prompt
+keeps it (the prior only decides where the evidence is close: the fallback to GeoFusion), a part anchored to the
+same prompt on every level takes it outright, and a prompt that GeoFusion left without faces still gets the faces
+where its share is within the prior of the winner's. Measured against GeoFusion and hard anchoring on the twin and
+on the labelled YCB scans over several detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin`
+and `--meshes ycb` (results in docs/results/).
 """
 
 from __future__ import annotations
@@ -70,8 +75,12 @@ from seggrasp.vote import labels_from_scores
 
 REFINE_MODES = ("none", "multi", "opt", "full", "spread")
 NORMALISATIONS = ("literal", "area_mean", "partition_mean")
-#: The literal reading of the paper; measured best of NORMALISATIONS (numbers in the module docstring).
+#: The literal reading of the paper; measured best of NORMALISATIONS (docs/results/fusion.md).
 SHIPPED_NORMALISATION = "literal"
+#: Soft anchoring: the prior added to a prompt's score share on its anchored part, spread over this many of the
+#: coarsest levels with a part per prompt (a face anchored to the same prompt on every level always takes it).
+ANCHOR_PRIOR = 1.0
+ANCHOR_LEVELS = 2
 
 
 def _check_inputs(scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray) -> None:
@@ -234,20 +243,71 @@ def anchor_prompts(
     return anchored
 
 
+def anchor_mode(anchor: bool | str) -> str:
+    """The anchoring mode `anchor` names: True = DEFAULT_ANCHOR, False = "off", else one of ANCHOR_MODES."""
+    if anchor is True:
+        return DEFAULT_ANCHOR
+    if anchor is False:
+        return "off"
+    if anchor not in ANCHOR_MODES:
+        raise ValueError(f"unknown anchoring mode {anchor!r}; use one of {ANCHOR_MODES} (or True / False)")
+    return anchor
+
+
 def refine_labels(
     scores: np.ndarray,
     partitions: Sequence[Partition],
     face_areas: np.ndarray,
     mode: str = "full",
-    anchor: bool = True,
+    anchor: bool | str = True,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(refined scores, labels): `refine_scores`, its argmax, then (if `anchor` and there are partitions) prompt
-    anchoring on the refined scores."""
+    """(refined scores, labels): `refine_scores`, its argmax, then (if there are partitions) prompt anchoring of
+    the refined scores in the mode `anchor` names (`anchor_mode`)."""
+    anchor = anchor_mode(anchor)
     refined = refine_scores(scores, partitions, face_areas, mode)
     labels = labels_from_scores(refined)
-    if anchor and partitions:
-        labels = anchor_prompts(labels, refined, partitions, face_areas)
+    if anchor != "off" and partitions:
+        labels = ANCHORS[anchor](labels, refined, partitions, face_areas)
     return refined, labels
+
+
+def soft_anchor_prompts(
+    labels: np.ndarray, scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
+    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS,
+) -> np.ndarray:
+    """Labels after soft anchoring (module docstring, "Soft anchoring"): on each of the `n_levels` coarsest
+    partitions with a part per prompt, the part `assign_parts_to_prompts` gives a prompt adds `prior / n_levels` to
+    that prompt's share of every face's score distribution (each row of `scores` divided by its sum); faces a prior
+    touches take the argmax of their distribution plus priors, every other face keeps its label from `labels`."""
+    scores = np.asarray(scores, dtype=np.float64)
+    face_areas = np.asarray(face_areas, dtype=np.float64)
+    _check_inputs(scores, partitions, face_areas)
+    if prior < 0 or n_levels < 1:
+        raise ValueError(f"need prior >= 0 and n_levels >= 1, got {prior} and {n_levels}")
+    n_prompts = scores.shape[1]
+    levels = sorted((p for p in partitions if p.n_parts >= n_prompts), key=lambda p: -p.threshold)[:n_levels]
+    levels = levels or [coarsest_with_parts(partitions, n_prompts)]
+    priors = np.zeros_like(scores)
+    for partition in levels:
+        means = part_mean_scores(scores, partition.part_of_face, face_areas)
+        distributions = means / np.maximum(means.sum(axis=1, keepdims=True), 1e-18)
+        for prompt, part in enumerate(assign_parts_to_prompts(distributions)):
+            if part >= 0:
+                priors[partition.part_of_face == part, prompt] += prior / len(levels)
+    total = scores.sum(axis=1, keepdims=True)
+    shares = np.divide(scores, total, out=np.zeros_like(scores), where=total > 0)
+    anchored = np.asarray(labels, dtype=np.int64).copy()
+    touched = priors.any(axis=1)
+    anchored[touched] = np.argmax(shares + priors, axis=1)[touched]
+    return anchored
+
+
+#: Anchoring modes of `refine_labels`: "off" = the paper's GeoFusion labels, "hard" = `anchor_prompts` (one part
+#: per prompt on the coarsest level, assigned outright), "soft" = `soft_anchor_prompts`.
+ANCHORS = {"hard": anchor_prompts, "soft": soft_anchor_prompts}
+ANCHOR_MODES = ("off", *ANCHORS)
+#: What `refine_labels(anchor=True)` (the default) does; measured on the twin and the YCB scans (docs/results/).
+DEFAULT_ANCHOR = "soft"
 
 
 def agreed_labels(*labellings: np.ndarray) -> np.ndarray:

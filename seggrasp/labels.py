@@ -10,12 +10,35 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 
 from seggrasp.io import atomic_save_npz, atomic_write_text
 
 UNKNOWN = -1
+
+
+def prompt_key(name: str) -> str:
+    """The form prompts and part names are compared in: stripped and lower-cased (the one matching rule)."""
+    if not isinstance(name, str):
+        raise ValueError(f"a prompt or part name must be a string, got {type(name).__name__} {name!r}")
+    return name.strip().lower()
+
+
+def find_prompt(names: Sequence[str], name: str) -> int | None:
+    """Index of `name` among `names` under `prompt_key`, or None when absent."""
+    keys = [prompt_key(n) for n in names]
+    key = prompt_key(name)
+    return keys.index(key) if key in keys else None
+
+
+def prompt_index(names: Sequence[str], name: str, what: str = "prompts") -> int:
+    """Index of `name` among `names` under `prompt_key`; ValueError naming the known ones if absent."""
+    index = find_prompt(names, name)
+    if index is None:
+        raise ValueError(f"{name!r} is not among the {what} {list(names)}")
+    return index
 
 
 @dataclass
@@ -58,16 +81,15 @@ class PartLabels:
 
     def part_index(self, name: str) -> int:
         """Index of a part by name (case-insensitive); ValueError naming the known parts if absent."""
-        lowered = [p.lower() for p in self.parts]
-        try:
-            return lowered.index(name.strip().lower())
-        except ValueError:
-            raise ValueError(f"no part named {name!r}; parts are {self.parts}") from None
+        index = find_prompt(self.parts, name)
+        if index is None:
+            raise ValueError(f"no part named {name!r}; parts are {self.parts}")
+        return index
 
     def remap_to(self, prompts: list[str]) -> np.ndarray:
         """Face labels expressed as prompt indices: a part matches a prompt by name; others become -1."""
-        lookup = {p.lower(): i for i, p in enumerate(prompts)}
-        table = np.array([lookup.get(p.lower(), UNKNOWN) for p in self.parts] + [UNKNOWN], dtype=np.int64)
+        found = [find_prompt(prompts, part) for part in self.parts]
+        table = np.array([UNKNOWN if i is None else i for i in found] + [UNKNOWN], dtype=np.int64)
         return table[self.face_labels]  # index -1 picks the trailing UNKNOWN
 
     def to_json(self) -> dict:

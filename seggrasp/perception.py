@@ -1,6 +1,6 @@
 """Perception shared by the twin and the robot: calibrated RGB-D frames -> object point cloud -> closed object mesh.
 
-Pipeline (`perceive_object`):
+Pipeline (`perceive_object`; point-cloud building blocks in seggrasp/cloud.py, the surface in seggrasp/surface.py):
 
 1. **Back-projection** of every frame's depth with its `K` and `T_world_cam`, cropped to the `Workspace` box.
 2. **View registration** (on by default): point-to-plane ICP, damped and linearised about the target's centroid;
@@ -41,11 +41,20 @@ from typing import Callable, Sequence
 
 import numpy as np
 import trimesh
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components, minimum_spanning_tree
-from scipy.spatial import cKDTree
 
 from seggrasp.cell import Frame
+from seggrasp.cloud import (
+    backproject,
+    checked_pose,
+    estimate_normals,
+    icp_point_to_plane,
+    orient_normals_by_propagation,
+    radius_components,
+    statistical_inliers,
+    transform_points,
+    voxel_downsample,
+)
+from seggrasp.surface import implicit_surface, seen_free_space
 
 logger = logging.getLogger(__name__)
 
@@ -161,7 +170,7 @@ def fuse_oriented_cloud(
     for index, frame in enumerate(frames):
         points = backproject(frame, config.max_depth)
         clouds.append(voxel_downsample(points[workspace.contains(points)], config.voxel_size))
-        centres.append(_checked_pose(frame.T_world_cam, f"frame {index} ({frame.name})")[:3, 3])
+        centres.append(checked_pose(frame.T_world_cam, f"frame {index} ({frame.name})")[:3, 3])
     if sum(len(c) for c in clouds) < config.min_points:
         raise ValueError(
             f"only {sum(len(c) for c in clouds)} depth points fall inside the workspace {workspace}; check the "
@@ -297,57 +306,6 @@ def perceive_object(
 # --- building blocks -------------------------------------------------------------------------------------------
 
 
-def backproject(frame: Frame, max_depth: float = np.inf) -> np.ndarray:
-    """World points (N, 3) of a frame's valid depth pixels (0 < depth <= max_depth), OpenCV pinhole model."""
-    depth = np.asarray(frame.depth, dtype=np.float64)
-    K = np.asarray(frame.K, dtype=np.float64)
-    if depth.ndim != 2:
-        raise ValueError(f"frame {frame.name}: depth must be (H, W), got shape {depth.shape}")
-    if K.shape != (3, 3) or not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ValueError(f"frame {frame.name}: K must be a 3x3 pinhole matrix with positive focal lengths, got {K}")
-    T_world_cam = _checked_pose(frame.T_world_cam, f"frame {frame.name}")
-    v, u = np.nonzero(np.isfinite(depth) & (depth > 0) & (depth <= max_depth))
-    z = depth[v, u]
-    camera_points = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], axis=1)
-    return transform_points(camera_points, T_world_cam)
-
-
-def transform_points(points: np.ndarray, T: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 transform to (N, 3) points."""
-    return points @ T[:3, :3].T + T[:3, 3]
-
-
-def voxel_downsample(points: np.ndarray, voxel: float, *attributes: np.ndarray):
-    """Centroid of the points (and mean of each per-point attribute) in every occupied voxel.
-
-    Returns the points alone when no attributes are given, else a tuple (points, *attributes).
-    """
-    if len(points) == 0:
-        return (points, *attributes) if attributes else points
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.reshape(-1)
-
-    def mean(values: np.ndarray) -> np.ndarray:
-        sums = np.zeros((len(counts), values.shape[1]))
-        np.add.at(sums, inverse, values)
-        return sums / counts[:, None]
-
-    reduced = mean(points)
-    if not attributes:
-        return reduced
-    return (reduced, *(mean(a) for a in attributes))
-
-
-def statistical_inliers(points: np.ndarray, neighbours: int, std_ratio: float) -> np.ndarray:
-    """Mask of points whose mean distance to their k nearest neighbours is within mean + std_ratio * std."""
-    if len(points) <= neighbours:
-        return np.ones(len(points), dtype=bool)
-    distances, _ = cKDTree(points).query(points, k=neighbours + 1)
-    mean_distance = distances[:, 1:].mean(axis=1)
-    return mean_distance <= mean_distance.mean() + std_ratio * mean_distance.std()
-
-
 def supported_clusters(points: np.ndarray, height: np.ndarray, config: PerceptionConfig) -> np.ndarray:
     """Mask of the points of the object on the table.
 
@@ -359,11 +317,11 @@ def supported_clusters(points: np.ndarray, height: np.ndarray, config: Perceptio
     """
     if len(points) == 0:
         return np.zeros(0, dtype=bool)
-    fine = _components(points, config.cluster_radius)
+    fine = radius_components(points, config.cluster_radius)
     keep = np.bincount(fine)[fine] >= config.min_cluster_points
     if not keep.any():
         return keep
-    coarse = _components(points[keep], config.cluster_link)
+    coarse = radius_components(points[keep], config.cluster_link)
     sizes = np.bincount(coarse)
     lowest = np.full(len(sizes), np.inf)
     np.minimum.at(lowest, coarse, height[keep])
@@ -373,178 +331,6 @@ def supported_clusters(points: np.ndarray, height: np.ndarray, config: Perceptio
     chosen = supported & (sizes >= config.cluster_keep_fraction * sizes[supported].max())
     keep[keep] = chosen[coarse]
     return keep
-
-
-def _components(points: np.ndarray, radius: float) -> np.ndarray:
-    """Connected-component index of every point under single linkage at `radius`."""
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points), len(points)))
-    return connected_components(graph, directed=False)[1]
-
-
-def estimate_normals(points: np.ndarray, neighbours: int) -> np.ndarray:
-    """Unit normals (unoriented) from PCA over each point's k nearest neighbours."""
-    k = min(neighbours, len(points))
-    _, index = cKDTree(points).query(points, k=k)
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    covariance = np.einsum("nki,nkj->nij", local, local)
-    _, eigenvectors = np.linalg.eigh(covariance)
-    return eigenvectors[:, :, 0]
-
-
-def orient_normals_by_propagation(points: np.ndarray, normals: np.ndarray, neighbours: int = 10) -> np.ndarray:
-    """Consistently oriented normals: flip along a minimum spanning tree of the k-NN graph (weights 1 - |n_i.n_j|)
-    starting from the highest point, whose normal is made to point up."""
-    k = min(neighbours + 1, len(points))
-    _, index = cKDTree(points).query(points, k=k)
-    rows = np.repeat(np.arange(len(points)), k - 1)
-    cols = index[:, 1:].reshape(-1)
-    weights = 1.0 - np.abs(np.einsum("ij,ij->i", normals[rows], normals[cols])) + 1e-6
-    tree = minimum_spanning_tree(coo_matrix((weights, (rows, cols)), shape=(len(points), len(points))))
-    tree = tree + tree.T
-    oriented = normals.copy()
-    _, components = connected_components(tree, directed=False)
-    for component in np.unique(components):
-        members = np.flatnonzero(components == component)
-        root = members[np.argmax(points[members, 2])]
-        if oriented[root, 2] < 0:
-            oriented[root] *= -1
-        order, predecessors = breadth_first_order(tree, root, directed=False)
-        for node in order[1:]:
-            if oriented[node] @ oriented[predecessors[node]] < 0:
-                oriented[node] *= -1
-    return oriented
-
-
-def implicit_surface(
-    grid_shape: tuple[int, int, int],
-    origin: np.ndarray,
-    step: float,
-    points: np.ndarray,
-    normals: np.ndarray,
-    bandwidth: float,
-    neighbours: int,
-    table_plane: tuple[np.ndarray, float] | None,
-    gap_voxels: int = 3,
-    free_space: Callable[[np.ndarray], np.ndarray] | None = None,
-) -> np.ndarray:
-    """Signed distance estimate (negative inside) on a regular grid from oriented points.
-
-    Near the data (within `bandwidth` of the nearest point): the Gaussian-weighted mean of the k nearest points'
-    tangent-plane distances (IMLS). Farther away only the sign matters, and it never comes from a normal far
-    away: with `free_space` (positions -> mask of space seen empty by a camera) a cell is outside when it was seen
-    empty and inside otherwise (unseen space counts as occupied, as in space carving); without it, a cell is
-    outside when it can be reached from the grid's border without crossing the data band or the table (see
-    `_flood_outside`). Below the table everything is outside. The grid's border must be outside for the zero level
-    set to be closed; `reconstruct_mesh` forces that.
-    """
-    axes = [origin[i] + step * np.arange(grid_shape[i]) for i in range(3)]
-    queries = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    tree = cKDTree(points)
-    distance, _ = tree.query(queries, k=1)
-    band = distance < bandwidth
-    if table_plane is None:
-        above_table = np.ones(len(queries), dtype=bool)
-        table_distance = None
-    else:
-        table_distance = queries @ np.asarray(table_plane[0], dtype=float) - float(table_plane[1])
-        above_table = table_distance > 0
-    if free_space is not None:
-        outside = free_space(queries) & ~band
-    else:
-        outside = _flood_outside(~band.reshape(grid_shape), above_table.reshape(grid_shape), gap_voxels).reshape(-1)
-    field = np.where(outside | ~above_table, distance, -distance)
-    k = min(neighbours, len(points))
-    near = np.flatnonzero(band)
-    for chunk in np.array_split(near, max(1, len(near) // 200_000)):
-        near_d, near_i = tree.query(queries[chunk], k=k)
-        near_d, near_i = near_d.reshape(len(chunk), k), near_i.reshape(len(chunk), k)
-        weights = np.exp(-((near_d / bandwidth) ** 2))
-        plane = np.einsum("nkj,nkj->nk", queries[chunk][:, None, :] - points[near_i], normals[near_i])
-        field[chunk] = (weights * plane).sum(axis=1) / np.maximum(weights.sum(axis=1), 1e-300)
-    if table_distance is not None:
-        field = np.maximum(field, -table_distance)  # intersect with the half-space above the table
-    return field.reshape(grid_shape)
-
-
-def _flood_outside(off_band: np.ndarray, above_table: np.ndarray, gap_voxels: int) -> np.ndarray:
-    """Grid cells reachable from the border through cells off the data band and above the table.
-
-    The flood runs through free space narrowed by `gap_voxels` away from the data band (not from the table), so
-    holes in the data up to 2 * gap_voxels cells wide (unseen spots, the strip the table margin removed) do not
-    let "outside" leak into the object; the flooded region is then widened back by as much.
-    """
-    from scipy import ndimage
-
-    free = off_band & above_table
-    ball = ndimage.generate_binary_structure(3, 1)
-    narrowed = free
-    if gap_voxels:
-        narrowed = ndimage.binary_erosion(off_band, ball, iterations=gap_voxels, border_value=1) & free
-    components, _ = ndimage.label(narrowed)
-    border = np.unique(
-        np.concatenate([components[[0, -1]].ravel(), components[:, [0, -1]].ravel(), components[:, :, [0, -1]].ravel()])
-    )
-    reachable = np.isin(components, border[border > 0])
-    if gap_voxels:
-        reachable = ndimage.binary_dilation(reachable, ball, iterations=gap_voxels, mask=free)
-    return reachable
-
-
-def seen_free_space(
-    frames: Sequence[Frame],
-    margin: float,
-    table_plane: tuple[np.ndarray, float] | None = None,
-    table_margin: float = 0.0,
-    max_depth: float = np.inf,
-) -> Callable[[np.ndarray], np.ndarray]:
-    """A function mapping world positions (N, 3) to a mask of those some camera saw as empty space: in front of
-    the measured surface along the pixel's ray by more than `margin`, or anywhere in front of it when the pixel
-    sees the table (its point lies within `table_margin` of `table_plane`), so the thin layer of air just above
-    the table counts as seen.
-
-    Each depth image is first max-filtered over 3x3 pixels, so a dropout or a noisy pixel next to a valid one does
-    not leave a spike of unseen space; this carves at most a pixel or two into silhouettes, which stays within the
-    data band where the IMLS surface, not carving, decides.
-    """
-    from scipy import ndimage
-
-    cameras = []
-    for frame in frames:
-        depth = np.asarray(frame.depth, dtype=np.float64)
-        depth = np.where(np.isfinite(depth) & (depth <= max_depth), depth, 0.0)
-        T_world_cam = _checked_pose(frame.T_world_cam, f"frame {frame.name}")
-        K = np.asarray(frame.K, dtype=np.float64)
-        sees_table = np.zeros(depth.shape, dtype=bool)
-        if table_plane is not None:
-            v, u = np.nonzero(depth > 0)
-            z = depth[v, u]
-            rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(z)], axis=1)
-            world = transform_points(rays * z[:, None], T_world_cam)
-            sees_table[v, u] = world @ np.asarray(table_plane[0]) - float(table_plane[1]) < table_margin
-        cameras.append((
-            ndimage.maximum_filter(depth, size=3), ndimage.binary_dilation(sees_table), K, np.linalg.inv(T_world_cam)
-        ))
-
-    def free(positions: np.ndarray) -> np.ndarray:
-        seen = np.zeros(len(positions), dtype=bool)
-        for depth, sees_table, K, T_cam_world in cameras:
-            local = transform_points(positions, T_cam_world)
-            z = local[:, 2]
-            in_front = z > 1e-6
-            u = np.full(len(z), -1, dtype=np.int64)
-            v = np.full(len(z), -1, dtype=np.int64)
-            u[in_front] = np.round(K[0, 0] * local[in_front, 0] / z[in_front] + K[0, 2]).astype(np.int64)
-            v[in_front] = np.round(K[1, 1] * local[in_front, 1] / z[in_front] + K[1, 2]).astype(np.int64)
-            inside = in_front & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
-            measured = np.zeros(len(z))
-            table = np.zeros(len(z), dtype=bool)
-            measured[inside] = depth[v[inside], u[inside]]
-            table[inside] = sees_table[v[inside], u[inside]]
-            seen |= inside & (measured > 0) & ((z < measured - margin) | (table & (z < measured)))
-        return seen
-
-    return free
 
 
 def fit_table_plane(
@@ -612,56 +398,3 @@ def register_views(clouds: list[np.ndarray], config: PerceptionConfig) -> list[n
     return corrections
 
 
-def icp_point_to_plane(
-    source: np.ndarray,
-    target: np.ndarray,
-    target_normals: np.ndarray,
-    max_distance: float,
-    iterations: int,
-    damping: float = 1e-3,
-) -> np.ndarray:
-    """4x4 transform moving `source` onto the surface sampled by `target` (linearised point-to-plane ICP,
-    correspondences farther than `max_distance` ignored).
-
-    Each step is linearised about the target's centroid and damped (Levenberg-Marquardt style, `damping` times
-    the largest curvature), so motions the geometry hardly constrains - sliding along a table, turning about the
-    axis of a nearly round object - stay small instead of drifting.
-    """
-    tree = cKDTree(target)
-    centre = target.mean(axis=0)
-    T = np.eye(4)
-    current = source
-    for _ in range(iterations):
-        distance, index = tree.query(current, k=1, distance_upper_bound=max_distance)
-        matched = np.isfinite(distance)
-        if matched.sum() < 6:
-            break
-        p, q, n = current[matched] - centre, target[index[matched]] - centre, target_normals[index[matched]]
-        A = np.concatenate([np.cross(p, n), n], axis=1)
-        b = np.einsum("ij,ij->i", q - p, n)
-        H = A.T @ A
-        x = np.linalg.solve(H + damping * np.linalg.eigvalsh(H)[-1] * np.eye(6), A.T @ b)
-        rotation = _rotation_from_vector(x[:3])
-        step = np.eye(4)
-        step[:3, :3] = rotation
-        step[:3, 3] = centre + x[3:] - rotation @ centre
-        T = step @ T
-        current = transform_points(source, T)
-        if np.linalg.norm(x[:3]) < 1e-6 and np.linalg.norm(x[3:]) < 1e-6:
-            break
-    return T
-
-
-def _rotation_from_vector(rotvec: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_rotvec(rotvec).as_matrix()
-
-
-def _checked_pose(T: np.ndarray, what: str) -> np.ndarray:
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValueError(f"{what}: T_world_cam must be a finite 4x4 matrix, got shape {T.shape}")
-    if not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-4) or not np.allclose(T[3], [0, 0, 0, 1]):
-        raise ValueError(f"{what}: T_world_cam is not a rigid transform")
-    return T

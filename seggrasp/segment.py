@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from seggrasp.detect.base import Detections, Detector
+from seggrasp.labels import prompt_key
 from seggrasp.mesh import PreparedMesh
 from seggrasp.render import DEFAULT_IMAGE_SIZE, camera_rig, render_views
 from seggrasp.views import View
@@ -88,7 +89,7 @@ def check_prompts(prompts: Sequence[str]) -> list[str]:
         raise ValueError("give at least one prompt (a part name such as 'handle')")
     if any(not p for p in cleaned):
         raise ValueError(f"prompts must not be empty: {list(prompts)}")
-    lowered = [p.lower() for p in cleaned]
+    lowered = [prompt_key(p) for p in cleaned]
     if len(set(lowered)) != len(lowered):
         raise ValueError(f"prompts must be distinct: {cleaned}")
     return cleaned

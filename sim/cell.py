@@ -11,15 +11,20 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
 2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
    speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
    finger stalls, lift, hold 1 s;
-3. report: lifted (raised >= 18 cm with both fingertips still touching it), lift height, the mesh faces the
-   fingertips (pads and the inner-finger rims they sit on) touched (contact points in the object frame -> nearest
-   face), and their total normal force while holding.
+3. report: lifted (the grasped point raised >= 18 cm, both fingertips still touching the object, and the object
+   moved < 10 mm / 15 deg relative to the gripper from the close to the end of the hold), else the failure
+   (`unreachable`, `collision`, `pushed`, `empty_close`, `slipped`, `rotated`); the rise of the grasped point, the
+   mesh faces the fingertips (pads and the inner-finger rims they sit on) touched (contact points in the object
+   frame -> nearest face) weighted by their normal force, and the total normal force while holding.
+
+`record_next(path)` makes the next `execute()` write a picture strip of its stages (`sim.recording`).
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import trimesh
@@ -31,12 +36,15 @@ from seggrasp.perception import Workspace
 from seggrasp.views import look_at
 from sim.cameras import DepthNoise, VirtualD435
 from sim.gripper import MAX_WIDTH, FloatingGripper, GripperSettings
+from sim.recording import TrialRecorder
 from sim.robot import ArmSettings, UR5Arm
 from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSettings, World
 
 log = logging.getLogger(__name__)
 
 EMBODIMENTS = ("arm", "floating")
+#: The object's drift in the fingers is checked every this many physics steps during lift and hold.
+TRACK_EVERY = 4
 #: Half side (m) of the square workspace box around the drop zone that perception crops to.
 WORKSPACE_HALF_SIZE = 0.25
 #: Floating gripper's home: above the workspace, pointing down.
@@ -56,7 +64,9 @@ class GraspSettings:
     lift_height: float = 0.20
     lift_speed: float = 0.10
     hold_time: float = 1.0
-    lift_success: float = 0.18
+    lift_success: float = 0.18  # the grasped point must rise this much
+    max_slip: float = 0.010  # the grasped point may move this much relative to the gripper from close to hold
+    max_rotation_deg: float = 15.0  # and the object turn this much
     table_clearance: float = 0.003
     settle_time: float = 1.0  # at most; settling stops once the object rests
 
@@ -127,6 +137,7 @@ class SimCell:
         self.current_object: ObjectModel | None = None
         self.object_body = -1
         self._seed = -1  # reset(None) takes the next seed
+        self._recorder: TrialRecorder | None = None
         self.reset(seed)
 
     # --- Cell interface ---------------------------------------------------------------------------------------
@@ -188,9 +199,17 @@ class SimCell:
         T_world_grasp = _check_pose(T_world_grasp)
         if not np.isfinite(width) or width < 0:
             raise ValueError(f"grasp width must be a non-negative number of metres, got {width}")
-        return GraspPrimitive(self.world, self.robot, self.object_body, self.current_object, self.grasp_settings).run(
-            T_world_grasp, float(width)
-        )
+        recorder, self._recorder = self._recorder, None
+        outcome = GraspPrimitive(
+            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings, recorder
+        ).run(T_world_grasp, float(width))
+        if recorder is not None and not outcome.reachable:
+            recorder.write(f"{self.current_object.object_id}: {outcome.message}")
+        return outcome
+
+    def record_next(self, path: str | Path) -> None:
+        """Record the next `execute()` as a picture strip (pre-grasp, closed, lifted, held) written to `path`."""
+        self._recorder = TrialRecorder(path)
 
     def close(self) -> None:
         if self.world is not None:
@@ -237,23 +256,32 @@ def _check_pose(T: np.ndarray) -> np.ndarray:
 
 
 class GraspPrimitive:
-    """One execution of pre-grasp, approach, close, lift and hold on an embodiment (arm or floating gripper)."""
+    """One execution of pre-grasp, approach, close, lift and hold on an embodiment (arm or floating gripper).
 
-    def __init__(self, world: World, robot, object_body: int, model: ObjectModel, settings: GraspSettings) -> None:
+    Success is judged as on the real cell: the grasped point rises at least `lift_success` and the object moves
+    less than `max_slip` / `max_rotation_deg` relative to the gripper from the close to the end of the hold;
+    otherwise the outcome names its failure (`seggrasp.cell.FAILURES`)."""
+
+    def __init__(
+        self, world: World, robot, object_body: int, model: ObjectModel, settings: GraspSettings,
+        recorder: TrialRecorder | None = None,
+    ) -> None:
         self.world, self.robot, self.object_body, self.model, self.settings = world, robot, object_body, model, settings
         self.gripper = robot.gripper
+        self.recorder = recorder
 
     def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         s = self.settings
         opening = min(width + s.width_margin, self.gripper.max_width)
-        T_world_base = T_world_grasp @ np.linalg.inv(self.gripper.T_base_tcp(min(width, self.gripper.max_width)))
+        self._T_base_tcp = self.gripper.T_base_tcp(min(width, self.gripper.max_width))
+        T_world_base = T_world_grasp @ np.linalg.inv(self._T_base_tcp)
         T_pre = T_world_base.copy()
         T_pre[:3, 3] -= s.pregrasp_distance * T_world_base[:3, 2]
         T_lift = T_world_base.copy()
         T_lift[2, 3] += s.lift_height
         candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
         if not candidates:
-            return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=f"unreachable: {reason}")
+            return GraspOutcome(False, False, 0.0, message=f"unreachable: {reason}", failure="unreachable")
         plan, start, reasons = None, self.robot.configuration(), []
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
@@ -268,33 +296,80 @@ class GraspPrimitive:
         if plan is None:
             self.gripper.set_width(self.gripper.max_width)
             message = reasons[0] + (f" (and {len(reasons) - 1} other paths collide)" if len(reasons) > 1 else "")
-            return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, message=message)
+            return GraspOutcome(False, False, 0.0, message=message, failure="collision")
         transit, paths = plan
         self.gripper.set_width(opening)
         self.robot.move_free(transit)
+        self._snap("pre-grasp")
+        return self._grasp_and_lift(paths)
 
-        z_start = self.world.body_pose(self.object_body)[2, 3]
+    def _grasp_and_lift(self, paths: list) -> GraspOutcome:
+        """Approach, close, lift and hold along a checked plan; judge the grasp (class docstring)."""
+        s = self.settings
+        T_obj_start = self.world.body_pose(self.object_body)
         self.robot.follow(paths[1], s.approach_speed)
+        moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
+        pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
         self.gripper.close_until_stall()
+        self._snap("closed")
         touched = self._pad_contacts()
-        self.robot.follow(paths[2], s.lift_speed)
+        if {side for side, _, _ in touched} != {0, 1}:
+            failure = "pushed" if pushed else "empty_close"
+            return self._outcome(failure, f"{failure}: the fingers closed on no grasp", touched, 0.0, 0.0)
+        T_obj_grasp = np.linalg.inv(self.world.body_pose(self.object_body)) @ self._T_world_tcp()
+        point = T_obj_grasp[:, 3]  # the grasped point, object frame
+        T_tcp_obj0 = np.linalg.inv(T_obj_grasp)
+        drift, steps = [0.0, 0.0], [0]
+
+        def track() -> None:  # every few physics steps: the largest drift of the object in the fingers
+            steps[0] += 1
+            if steps[0] % TRACK_EVERY:
+                return
+            T_tcp_obj = np.linalg.inv(self._T_world_tcp()) @ self.world.body_pose(self.object_body)
+            moved, turned = _moved(T_tcp_obj0, T_tcp_obj, point)
+            drift[0], drift[1] = max(drift[0], moved), max(drift[1], turned)
+
+        self.robot.follow(paths[2], s.lift_speed, on_step=track)
+        self._snap("lifted")
         hold_steps = int(round(s.hold_time / self.world.physics.time_step))
+        self.robot.hold(hold_steps - 10, on_step=track)
         forces: list[float] = []
-        self.robot.hold(hold_steps - 10)
         for _ in range(10):
             self.world.step()
             forces.append(self._pad_normal_force())
-        final_contacts = self._pad_contacts()
-        touched = [*touched, *final_contacts]
-        lift_height = float(self.world.body_pose(self.object_body)[2, 3] - z_start)
-        both_pads = {side for side, _ in final_contacts} == {0, 1}
-        lifted = lift_height >= s.lift_success and both_pads
-        faces = self._faces_of(np.array([p for _, p in touched])) if touched else np.zeros(0, dtype=np.int64)
-        message = "lifted" if lifted else ("not lifted: dropped or never held" if not both_pads else "not lifted: too low")
+        steps[0] = -1
+        track()
+        self._snap("held")
+        final = self._pad_contacts()
+        rise = float((self.world.body_pose(self.object_body) @ point)[2] - (T_obj_start @ point)[2])
+        held = {side for side, _, _ in final} == {0, 1}
+        if not held or rise < s.lift_success:
+            failure = "pushed" if pushed and not held else "slipped"
+            message = f"{failure}: " + ("dropped" if not held else f"grasped point rose only {rise * 100:.1f} cm")
+        elif drift[1] > np.deg2rad(s.max_rotation_deg):
+            failure, message = "rotated", f"rotated: held but turned {np.rad2deg(drift[1]):.0f} deg in the fingers"
+        elif drift[0] > s.max_slip:
+            failure, message = "slipped", f"slipped: held but moved {drift[0] * 1000:.0f} mm in the fingers"
+        else:
+            failure, message = "", "lifted"
+        return self._outcome(failure, message, touched + final, rise, float(np.mean(forces)))
+
+    def _outcome(self, failure: str, message: str, contacts: list, rise: float, force: float) -> GraspOutcome:
+        """The outcome with the touched faces weighted by the normal force of their contacts; closes a recording."""
+        faces, weights = self._touched_faces(contacts)
+        if self.recorder is not None:
+            self.recorder.write(f"{self.model.object_id}: {message}")
         return GraspOutcome(
-            reachable=True, lifted=bool(lifted), lift_height=max(lift_height, 0.0),
-            touched_faces=faces, contact_force=float(np.mean(forces)), message=message,
+            reachable=True, lifted=not failure, lift_height=max(rise, 0.0), touched_faces=faces,
+            contact_force=force, message=message, failure=failure, touched_weights=weights,
         )
+
+    def _T_world_tcp(self) -> np.ndarray:
+        return self.world.link_pose(self.gripper.body, self.gripper.base_link) @ self._T_base_tcp
+
+    def _snap(self, stage: str) -> None:
+        if self.recorder is not None:
+            self.recorder.snap(self.world.client, stage, self._T_world_tcp())
 
     def collision_on_path(self, transit: list, near_object: list, opening: float) -> str:
         """'' if the robot (gripper opened to `opening`) keeps `table_clearance` from the table on every
@@ -316,27 +391,40 @@ class GraspPrimitive:
                 return f"robot would hit the object {where}"
         return ""
 
-    def _pad_contacts(self) -> list[tuple[int, np.ndarray]]:
-        """(side 0 = left / 1 = right, contact point in the object frame) for every fingertip-object contact
-        (a fingertip is the inner finger with its pad: the finger mesh's rim touches as well as the pad box)."""
+    def _pad_contacts(self) -> list[tuple[int, np.ndarray, float]]:
+        """(side 0 = left / 1 = right, contact point in the object frame, normal force N) for every
+        fingertip-object contact (a fingertip is the inner finger with its pad: the finger mesh's rim touches as
+        well as the pad box)."""
         T_obj_world = np.linalg.inv(self.world.body_pose(self.object_body))
         contacts = []
         for side, links in enumerate(self.gripper.fingertip_links):
             for link in links:
                 for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=link):
-                    contacts.append((side, (T_obj_world @ np.append(point[6], 1.0))[:3]))
+                    contacts.append((side, (T_obj_world @ np.append(point[6], 1.0))[:3], float(point[9])))
         return contacts
 
     def _pad_normal_force(self) -> float:
         """Total normal force (N) between the fingertips and the object."""
-        return float(sum(
-            point[9]
-            for links in self.gripper.fingertip_links
-            for link in links
-            for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=link)
-        ))
+        return float(sum(force for _, _, force in self._pad_contacts()))
 
-    def _faces_of(self, points: np.ndarray) -> np.ndarray:
-        """Mesh faces nearest to contact points (object frame)."""
+    def _touched_faces(self, contacts: list) -> tuple[np.ndarray, np.ndarray]:
+        """Mesh faces nearest to the contact points and the summed normal force on each (uniform weights when
+        no contact carried force)."""
+        if not contacts:
+            return np.zeros(0, dtype=np.int64), np.zeros(0)
+        points = np.array([point for _, point, _ in contacts])
+        forces = np.array([force for _, _, force in contacts])
         _, _, triangles = trimesh.proximity.closest_point(self.model.mesh, points)
-        return np.unique(np.asarray(triangles, dtype=np.int64))
+        faces, inverse = np.unique(np.asarray(triangles, dtype=np.int64), return_inverse=True)
+        weights = np.bincount(inverse.reshape(-1), weights=forces, minlength=len(faces))
+        if weights.sum() <= 0:
+            weights = np.ones(len(faces))
+        return faces, weights
+
+
+def _moved(T_a: np.ndarray, T_b: np.ndarray, point: np.ndarray | None = None) -> tuple[float, float]:
+    """(distance m, angle rad) between two poses of a body: how far `point` (body frame; default its origin)
+    moved and how far the body turned."""
+    point = np.array([0.0, 0.0, 0.0, 1.0]) if point is None else point
+    distance = float(np.linalg.norm((T_a @ point)[:3] - (T_b @ point)[:3]))
+    return distance, float(Rotation.from_matrix(T_a[:3, :3].T @ T_b[:3, :3]).magnitude())

@@ -11,10 +11,14 @@ a `Dict`:
 
 Action: `Box(7,)` float32 = grasp position x, y, z in the world frame (m), grasp orientation as a rotation vector
 (rad; gripper z = approach, x = closing direction), and the expected grasp width (m, 0..0.085). `step` executes the
-grasp-and-lift and ends the episode (`terminated=True`). Reward (sim): 1.0 when the object was lifted and most
-faces the pads touched belong to the prompted part (ground truth), else 0.0. With `backend="real"` contacts are not
-observed, so the reward is 1.0 for a lift and `info["on_part"]` is None. `info["outcome"]` is the `GraspOutcome` as
-JSON.
+grasp-and-lift through the same `seggrasp.episode.Episode` the benchmark and the real cell run, and ends the episode
+(`terminated=True`; `truncated` is always False: there is no time limit). Reward (sim): 1.0 when the object was
+lifted and the prompted part carries most of what the pads touched (ground truth), else 0.0. With `backend="real"`
+contacts are not observed, so the reward is 1.0 for a lift and `info["on_part"]` is None. `info["outcome"]` is the
+`GraspOutcome` as JSON and `info["record"]` the episode's `TrialRecord` as JSON.
+
+Misuse is refused with a clear error before anything moves: `step` before a successful `reset`, after the episode
+ended or after `close`, an action outside `action_space`, a prompt that is not a string or not a part.
 """
 
 from __future__ import annotations
@@ -27,8 +31,11 @@ import numpy as np
 from gymnasium import spaces
 from scipy.spatial.transform import Rotation
 
-from seggrasp.cell import Frame, GraspOutcome
+from seggrasp.cell import Frame
+from seggrasp.episode import Episode, EpisodeContext, action_slot
+from seggrasp.labels import find_prompt
 from seggrasp.objects import ObjectModel
+from seggrasp.truth import GroundTruth
 
 ENV_ID = "SegGrasp-v0"
 PROMPT_CHARSET = string.ascii_letters + string.digits + " _-'"
@@ -45,7 +52,8 @@ ACTION_HIGH = np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, 0.085], dtype=np.flo
 def register_envs() -> None:
     """Register `SegGrasp-v0` with Gymnasium (idempotent; also the `gymnasium.envs` entry point)."""
     if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="sim.env:SegGraspEnv", max_episode_steps=1)
+        # no max_episode_steps: its TimeLimit wrapper would mark the one step `truncated` as well as `terminated`
+        gym.register(id=ENV_ID, entry_point="sim.env:SegGraspEnv")
 
 
 def action_to_grasp(action: np.ndarray) -> tuple[np.ndarray, float]:
@@ -63,15 +71,6 @@ def grasp_to_action(T_world_grasp: np.ndarray, width: float) -> np.ndarray:
     """(T_world_grasp, width) -> action vector (the inverse of `action_to_grasp`)."""
     rotvec = Rotation.from_matrix(np.asarray(T_world_grasp)[:3, :3]).as_rotvec()
     return np.concatenate([np.asarray(T_world_grasp)[:3, 3], rotvec, [width]]).astype(np.float32)
-
-
-def on_prompted_part(model: ObjectModel, outcome: GraspOutcome, prompt: str) -> bool:
-    """True when most faces the pads touched carry the prompted part's ground-truth label."""
-    if model.labels is None or len(outcome.touched_faces) == 0:
-        return False
-    part = model.labels.part_index(prompt)
-    labels = model.labels.face_labels[outcome.touched_faces]
-    return bool(np.mean(labels == part) >= 0.5)
 
 
 class SegGraspEnv(gym.Env):
@@ -120,6 +119,8 @@ class SegGraspEnv(gym.Env):
         self.observation_space = self._make_observation_space(frames)
         self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
         self.prompt: str | None = None
+        self._episode: Episode | None = None  # set by a successful reset, cleared when the step ends the episode
+        self.scene_seed: int | None = None  # the cell's scene seed of the last successful reset
 
     def _make_observation_space(self, frames: list[Frame]) -> spaces.Dict:
         entries: dict[str, spaces.Space] = {
@@ -157,44 +158,67 @@ class SegGraspEnv(gym.Env):
             }
         return observation
 
+    def _check_open(self) -> None:
+        if getattr(self, "cell", None) is None:
+            raise RuntimeError("this SegGrasp environment is closed; make a new one")
+
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+        self._check_open()
+        self._episode = None  # a reset that fails leaves no episode to step
         super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"object_id", "prompt"}
         if unknown:
             raise ValueError(f"unknown reset options {sorted(unknown)}; use 'object_id' and 'prompt'")
+        prompt = options.get("prompt")
+        if prompt is not None and not isinstance(prompt, str):
+            raise ValueError(f"the prompt must be a string (a part name), got {type(prompt).__name__} {prompt!r}")
         cell_seed = int(self.np_random.integers(2**31 - 1))
         self.cell.reset(seed=cell_seed, object_id=options.get("object_id"))
-        prompt = options.get("prompt")
         if self.backend == "sim":
-            model = self.cell.current_object
-            parts = model.labels.parts if model.labels is not None else model.prompts
-            if prompt is None:
-                labelled = sorted(set(model.labels.face_labels[model.labels.face_labels >= 0].tolist())) if model.labels else []
-                candidates = [parts[i] for i in labelled] or list(model.prompts)
-                prompt = candidates[int(self.np_random.integers(len(candidates)))]
-            elif prompt.lower() not in [p.lower() for p in parts]:
-                raise ValueError(f"object {model.object_id!r} has no part {prompt!r}; parts: {parts}")
+            context, truth, prompt = self._twin_subject(cell_seed, prompt)
         elif prompt is None:
             raise ValueError('the real backend needs options={"prompt": ...}: it does not know the object\'s parts')
+        else:
+            context, truth = EpisodeContext(options.get("object_id") or "object", "real", [prompt], cell_seed), None
         if not self.observation_space["prompt"].contains(prompt):
             raise ValueError(f"prompt {prompt!r} must be 1-{PROMPT_MAX_LENGTH} characters from {PROMPT_CHARSET!r}")
         self.prompt = prompt
+        self._episode = Episode(self.cell, context, truth=truth)
+        self._prompt_index = find_prompt(context.prompts, prompt)
+        self.scene_seed = cell_seed
         info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt}
         return self._observation(), info
 
+    def _twin_subject(self, scene_seed: int, prompt: str | None) -> tuple[EpisodeContext, GroundTruth | None, str]:
+        """The twin object's context (its parts as prompts), its ground truth, and the prompt (drawn if None)."""
+        model = self.cell.current_object
+        parts = model.labels.parts if model.labels is not None else list(model.prompts)
+        if prompt is None:
+            labelled = sorted(set(model.labels.face_labels[model.labels.face_labels >= 0].tolist())) if model.labels else []
+            candidates = [parts[i] for i in labelled] or list(model.prompts)
+            prompt = candidates[int(self.np_random.integers(len(candidates)))]
+        elif find_prompt(parts, prompt) is None:
+            raise ValueError(f"object {model.object_id!r} has no part {prompt!r}; parts: {parts}")
+        context = EpisodeContext.from_object(model, scene_seed, prompts=parts)
+        return context, GroundTruth.of_object(model, parts, true_pose=lambda: self.cell.object_mesh()[1]), prompt
+
     def step(self, action: np.ndarray):
-        if self.prompt is None:
-            raise RuntimeError("call reset() before step()")
-        T_world_grasp, width = action_to_grasp(action)
-        outcome = self.cell.execute(T_world_grasp, width)
-        if self.backend == "sim":
-            on_part: bool | None = on_prompted_part(self.cell.current_object, outcome, self.prompt)
-            reward = 1.0 if outcome.lifted and on_part else 0.0
-        else:
-            on_part = None
-            reward = 1.0 if outcome.lifted else 0.0
-        info = {"outcome": outcome.to_json(), "on_part": on_part, "prompt": self.prompt}
+        self._check_open()
+        if self._episode is None:
+            raise RuntimeError("no episode to step: call reset() first (after a failed reset, or once the step "
+                               "ended the episode)")
+        checked = np.asarray(action, dtype=np.float64)
+        if checked.shape != (7,) or not np.all(np.isfinite(checked)) or not self.action_space.contains(
+                checked.astype(np.float32)):
+            raise ValueError(f"action {np.asarray(action).tolist()} is outside the action space "
+                             f"(low {ACTION_LOW.tolist()}, high {ACTION_HIGH.tolist()}); nothing was executed")
+        T_world_grasp, width = action_to_grasp(checked)
+        episode, self._episode = self._episode, None  # one grasp per episode, even if executing it raises
+        record = episode.execute(action_slot(self._prompt_index, T_world_grasp, width), reset=False)
+        reward = float(record.success) if record.success is not None else float(record.lifted)
+        info = {"outcome": record.outcome, "on_part": record.touched_on_part, "prompt": self.prompt,
+                "record": record.to_json()}
         return self._observation(), reward, True, False, info
 
     def render(self):
@@ -205,6 +229,7 @@ class SegGraspEnv(gym.Env):
         return None
 
     def close(self) -> None:
+        self._episode = None
         if getattr(self, "cell", None) is not None:
             self.cell.close()
             self.cell = None

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet
 
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from sim.world import PATH_RESOLUTION, World, linear_poses, pose_to_pb
 
 FINGER_JOINT = "finger_joint"
@@ -44,18 +45,32 @@ PAD_SPINNING_FRICTION = 0.002
 PAD_ROLLING_FRICTION = 0.0001
 
 
+#: `finger_joint` torque (N m) per newton of grip force: the linkage's lever from the motor to the pad centres
+#: (about 8 cm over the stroke; tests/test_sim_gripper.py checks the resulting squeeze).
+TORQUE_PER_NEWTON = 0.08
+
+
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: closing speed of `finger_joint` (rad/s), its torque limit (N m; 3 N m squeezes with ~40 N per
-    finger, 70-85 N summed over both, like the real cell's 40 N setting in the 2F-85's 20-235 N), the followers'
-    servo force, and stall detection."""
+    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) becomes the torque limit of the
+    velocity-controlled `finger_joint`; closing speed (rad/s), the followers' servo force and stall detection."""
 
+    grip_force: float = DEFAULT_GRIP_FORCE
     closing_speed: float = 1.5
-    closing_torque: float = 3.0
     stall_travel: float = 0.004  # rad over `stall_steps` steps: the finger has stalled
     stall_steps: int = 8
     follower_force: float = 50.0
     follower_gain: float = 1.0
+
+    def __post_init__(self) -> None:
+        low, high = GRIP_FORCE_RANGE
+        if not low <= self.grip_force <= high:
+            raise ValueError(f"grip_force must be within the 2F-85's {low:g}-{high:g} N, got {self.grip_force}")
+
+    @property
+    def closing_torque(self) -> float:
+        """Torque limit (N m) of `finger_joint` that squeezes with `grip_force`."""
+        return self.grip_force * TORQUE_PER_NEWTON
 
 
 class Robotiq2F85:
@@ -215,9 +230,6 @@ class FloatingGripper:
         world.client.changeConstraint(self.constraint, maxForce=300.0)
         self._commanded = self.T_world_home.copy()
         self.max_speed = 0.5  # m/s along straight lines
-
-    def base_pose(self) -> np.ndarray:
-        return self.world.body_pose(self.body)
 
     def _teleport(self, T_world_base: np.ndarray) -> None:
         self._commanded = np.asarray(T_world_base, dtype=float).copy()

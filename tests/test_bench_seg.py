@@ -25,3 +25,33 @@ def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkey
     assert stats.cached == [] and {0.02, 0.25} <= set(stats.run_seconds)
     assert len(partitions) == 1 and partitions[0].part_of_face.shape == (len(model.mesh.faces),)
     assert seconds > 0 and peak_mb > 0
+
+
+def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofusion():
+    def record(mesh, category, seed, coarse, full, default):
+        return {"mesh": mesh, "category": category, "seed": seed,
+                "miou": {"none": coarse, "full": full, "default": default}}
+
+    records = [record("a1", "a", 0, 0.3, 0.4, 0.6), record("a1", "a", 1, 0.5, 0.6, 0.6),
+               record("b1", "b", 0, 0.3, 0.5, 0.4), record("b1", "b", 1, 0.3, 0.5, 0.5)]
+    mean, se = bench_seg._paired(records, "default", "none")
+    # per-seed category-mean differences: seed 0 (0.3 + 0.1) / 2 = 0.2, seed 1 (0.1 + 0.2) / 2 = 0.15
+    assert mean == pytest.approx(0.175) and se == pytest.approx(0.025)
+    report = bench_seg.quality_report(records, "test")
+    assert "not above GeoFusion: b." in report and "Worst mesh, default - GeoFusion: b1 -0.050" in report
+    assert "| a1 | a | 0.400 | 0.500 | 0.600 | +0.100 +- 0.100 |" in report
+
+
+def test_quality_needs_a_known_mesh_set_and_results_need_quality(capsys):
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "twin", "--results", "x.md"])
+    assert "--results needs --quality" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "twin", "--quality", "--seeds", "0"])
+
+
+def test_ycb_set_without_the_scans_is_a_clear_error(monkeypatch, tmp_path, capsys):
+    monkeypatch.setenv("SEGGRASP_YCB_DIR", str(tmp_path / "absent"))
+    with pytest.raises(SystemExit):
+        bench_seg.main(["--meshes", "ycb", "--quality"])
+    assert "YCB scans not found" in capsys.readouterr().err

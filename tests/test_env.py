@@ -109,3 +109,54 @@ def test_real_backend_needs_a_config():
         SegGraspEnv(backend="real")
     with pytest.raises(ValueError, match="backend"):
         SegGraspEnv(backend="mujoco")
+
+
+def test_one_step_ends_the_episode_and_a_second_step_is_refused(objects):
+    """Issue 13 finding 5: terminated only (no truncation), no second grasp in the same scene."""
+    env = gym.make("SegGrasp-v0", objects=objects, embodiment="floating", include_mesh=True, **SMALL)
+    try:
+        obs, _ = env.reset(seed=4, options={"object_id": "box", "prompt": "side"})
+        _, _, terminated, truncated, info = env.step(side_grasp_action(obs))
+        assert terminated and not truncated
+        assert info["record"]["prompt"] == "side" and info["record"]["executed"]
+        with pytest.raises(RuntimeError, match="reset"):
+            env.step(side_grasp_action(obs))
+    finally:
+        env.close()
+
+
+def test_an_action_outside_the_action_space_is_refused_before_it_moves(objects):
+    env = SegGraspEnv(objects, embodiment="floating", include_mesh=True, **SMALL)
+    try:
+        obs, _ = env.reset(seed=4, options={"object_id": "box", "prompt": "side"})
+        executed = []
+        env.cell.execute = lambda *args: executed.append(args)  # nothing may reach the cell
+        for bad in ([5.0, 0.0, 0.1, 0.0, 0.0, 0.0, 0.05], [0.5, 0.0, 0.1, 0.0, 0.0, 0.0, 0.2]):
+            with pytest.raises(ValueError, match="outside the action space"):
+                env.step(np.array(bad, dtype=np.float32))
+        assert executed == []
+    finally:
+        env.close()
+
+
+def test_misuse_before_reset_after_a_failed_reset_and_after_close_is_refused(objects):
+    """Issue 13 finding 7: no grasp runs after a failed reset; clear errors for a wrong prompt type and a closed env."""
+    env = gym.make("SegGrasp-v0", objects=objects, embodiment="floating", include_mesh=True, **SMALL)
+    action = np.array([0.5, 0.0, 0.1, np.pi, 0.0, 0.0, 0.05], dtype=np.float32)
+    executed = []
+    env.unwrapped.cell.execute = lambda *args: executed.append(args)
+    env.reset(seed=0, options={"object_id": "box", "prompt": "side"})  # a good episode, then a failed reset
+    with pytest.raises(ValueError, match="no part"):
+        env.reset(seed=0, options={"object_id": "box", "prompt": "handle"})
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(action)
+    with pytest.raises(ValueError, match="must be a string"):
+        env.reset(seed=0, options={"object_id": "box", "prompt": 3})
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(action)
+    assert executed == []
+    env.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        env.reset(seed=0)
+    with pytest.raises(RuntimeError, match="closed"):
+        env.unwrapped.step(action)

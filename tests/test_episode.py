@@ -1,5 +1,5 @@
-"""The episode runner on the simulated cell with labelled primitives: oracle, coarse and shapegrasp episodes,
-the no-grasp slot, outcome reuse and the table plane."""
+"""The episode on the simulated cell with labelled primitives: oracle, coarse and shapegrasp episodes, the no-grasp
+slot, outcome reuse, the vote cache, failure names and the table plane."""
 
 import numpy as np
 import pytest
@@ -8,13 +8,11 @@ import trimesh
 from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.decompose import Partition
 from seggrasp.fusion import part_mean_scores
-from seggrasp.episode import (
-    DetectorSpec,
-    EpisodeContext,
-    ObjectSegmenter,
-    run_episode,
-    table_plane_in_object_frame,
-)
+from seggrasp.cell import GraspOutcome
+from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, failure_of, table_plane_in_object_frame
+from seggrasp.labels import PartLabels, find_prompt, prompt_index
+from seggrasp.method import ObjectSegmenter
+from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.cell import SimCell
 from sim.primitives import primitive_object
 
@@ -32,6 +30,15 @@ def cell(cylinder):
         yield sim_cell
 
 
+def run_episode(cell, model, method, detector=DetectorSpec(), targets=None, outcome_cache=None, on_record=None,
+                **settings):
+    """One method's episode on the twin primitive `model` (its ground truth passed in, as a harness does)."""
+    context = EpisodeContext.from_object(model, scene_seed=2)
+    truth = GroundTruth.of_object(model, context.prompts, true_pose=lambda: cell.object_mesh()[1])
+    episode = Episode(cell, context, detector, truth, EpisodeSettings(**settings), outcome_cache=outcome_cache)
+    return episode.run(method, targets, on_record=on_record)
+
+
 def test_table_plane_passes_through_the_lowest_point() -> None:
     mesh = trimesh.creation.box((0.04, 0.06, 0.1))
     T = trimesh.transformations.rotation_matrix(0.4, [1, 1, 0])
@@ -44,8 +51,7 @@ def test_table_plane_passes_through_the_lowest_point() -> None:
 
 
 def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, cylinder) -> None:
-    context = EpisodeContext.from_object(cylinder, scene_seed=2)
-    records = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side", "top"], top_k=3, seed=0)
+    records = run_episode(cell, cylinder, "oracle", targets=["side", "top"], top_k=3, seed=0)
     assert [(r.prompt, r.rank) for r in records] == [("side", 0), ("side", 1), ("side", 2), ("top", 0), ("top", 1),
                                                       ("top", 2)]
     side, top = records[:3], records[3:]
@@ -59,22 +65,25 @@ def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, 
     # both contacts of an antipodal grasp can never lie on the flat top face: nothing to execute
     for r in top:
         assert not r.executed and r.n_candidates == 0 and r.success is False and r.contacts_on_part is False
+        assert r.failure == "no_grasp"
+    assert all(r.failure == "" for r in side if r.success)
 
 
 def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
-    context = EpisodeContext.from_object(cylinder, scene_seed=2)
     cache: dict = {}
-    first = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, outcome_cache=cache)
-    again = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, outcome_cache=cache)
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    truth = GroundTruth.of_object(cylinder, context.prompts)
+    episode = Episode(cell, context, None, truth, EpisodeSettings(top_k=2), outcome_cache=cache)
+    first = episode.run("oracle", ["side"])
+    again = episode.run("oracle", ["side"])
     assert len(cache) == 2
     assert not any(r.reused_outcome for r in first) and all(r.reused_outcome for r in again)
     assert [r.lift_height for r in first] == [r.lift_height for r in again]
 
 
 def test_coarse_episode_names_its_detector_and_executes_on_voted_faces(cell, cylinder) -> None:
-    context = EpisodeContext.from_object(cylinder, scene_seed=2)
     streamed = []
-    records = run_episode(cell, context, "coarse", DetectorSpec(preset="perfect"), targets=["side"], top_k=2,
+    records = run_episode(cell, cylinder, "coarse", DetectorSpec(preset="perfect"), targets=[" SIDE "], top_k=2,
                           on_record=streamed.append)
     assert streamed == records
     assert all(r.method == "coarse" and r.detector == "simulated:perfect" for r in records)
@@ -82,14 +91,13 @@ def test_coarse_episode_names_its_detector_and_executes_on_voted_faces(cell, cyl
 
 
 def test_unknown_method_and_target_are_rejected(cell, cylinder) -> None:
-    context = EpisodeContext.from_object(cylinder, scene_seed=2)
     with pytest.raises(ValueError, match="unknown method"):
-        run_episode(cell, context, "magic", DetectorSpec())
+        run_episode(cell, cylinder, "magic")
     with pytest.raises(ValueError, match="not among the prompts"):
-        run_episode(cell, context, "oracle", DetectorSpec(), targets=["handle"])
+        run_episode(cell, cylinder, "oracle", targets=["handle"])
     unlabelled = EpisodeContext(cylinder.object_id, "cylinder", ["side"], scene_seed=2)
     with pytest.raises(ValueError, match="ground-truth"):
-        run_episode(cell, unlabelled, "oracle", DetectorSpec())
+        Episode(cell, unlabelled, DetectorSpec()).run("oracle")
 
 
 def test_shapegrasp_grasps_top_down_at_the_voted_part() -> None:
@@ -128,7 +136,7 @@ def test_seggrasp_selects_grasps_only_where_its_labels_agree_with_the_votes(cyli
     votes[gt == 1, 1] = 1.0
     votes[gt == 2] = [0.0, 0.6, 0.5]
     pieces = Partition(0.05, np.asarray(gt))  # a decomposition whose parts are the cylinder's three surfaces
-    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], DetectorSpec(), coarse_scores=votes,
+    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], None, "votes", coarse_scores=votes,
                                 partitions=[pieces])
     plan = segmenter.plan("seggrasp", np.eye(4))
     anchored = segmenter.plan("anchored", np.eye(4))
@@ -144,14 +152,33 @@ def test_seggrasp_selects_grasps_only_where_its_labels_agree_with_the_votes(cyli
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
     fake_votes = np.zeros((len(cylinder.mesh.faces), 3))
     fake_votes[:, 1] = 1.0
-    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], DetectorSpec(), coarse_scores=fake_votes)
+    segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], None, "votes", coarse_scores=fake_votes)
     plan = segmenter.plan("coarse", np.eye(4))
     assert np.all(plan.labels == 1)
+    with pytest.raises(ValueError, match="planned from ground truth"):
+        segmenter.plan("oracle", np.eye(4))  # the method never sees ground truth
 
 
 def test_perceived_episode_plans_on_the_camera_mesh(cell, cylinder) -> None:
-    context = EpisodeContext.from_object(cylinder, scene_seed=2)
-    records = run_episode(cell, context, "oracle", DetectorSpec(), targets=["side"], top_k=2, perceive=True,
+    records = run_episode(cell, cylinder, "oracle", targets=["side"], top_k=2, perceive=True,
                           workspace=cell.workspace)
     assert all(r.executed for r in records)
     assert any(r.success for r in records)  # labels transferred from the twin to the fused mesh select the side
+
+
+def test_every_failed_trial_is_named() -> None:
+    lifted = GraspOutcome(reachable=True, lifted=True, lift_height=0.2)
+    assert failure_of(None, None, None) == "no_grasp"
+    assert failure_of(lifted, False, False) == "wrong_part"  # held, but by another part
+    assert failure_of(lifted, True, True) == ""
+    assert failure_of(GraspOutcome(True, False, 0.01, failure="slipped"), False, True) == "slipped"
+
+
+def test_one_prompt_rule_everywhere() -> None:
+    """Prompts match part names case-insensitively and stripped, in lookups and in remapping alike."""
+    labels = PartLabels(["Handle", "body"], np.array([0, 1, -1, 0]))
+    assert find_prompt(labels.parts, "  handle ") == 0 and find_prompt(labels.parts, "lid") is None
+    assert labels.part_index(" BODY") == 1
+    np.testing.assert_array_equal(labels.remap_to([" body ", "HANDLE"]), [1, 0, -1, 1])
+    with pytest.raises(ValueError, match="not among"):
+        prompt_index(["handle"], "lid")

@@ -9,6 +9,8 @@ import pytest
 
 from seggrasp.decompose import Partition
 from seggrasp.fusion import (
+    ANCHOR_MODES,
+    DEFAULT_ANCHOR,
     REFINE_MODES,
     agreed_labels,
     anchor_prompts,
@@ -16,6 +18,7 @@ from seggrasp.fusion import (
     coarsest_with_parts,
     refine_labels,
     refine_scores,
+    soft_anchor_prompts,
 )
 from seggrasp.vote import labels_from_scores
 
@@ -159,6 +162,48 @@ def test_anchoring_uses_each_parts_distribution_over_the_prompts():
     partition = Partition(0.1, np.array([0, 0, 1, 1]))
     anchored = anchor_prompts(np.zeros(4, dtype=int), scores, [partition], np.ones(4))
     np.testing.assert_array_equal(anchored, [0, 0, 1, 1])
+
+
+# Six faces of equal area: the coarse level splits {0, 1, 2} from {3, 4, 5}, the finest has a part per face. Face 5
+# is the small "handle", the rest is "body"; faces 3 and 4 are held firmly for "body" by the votes.
+FIRM_SCORES = np.array([[0.9, 0.1], [0.9, 0.1], [0.9, 0.1], [0.95, 0.05], [0.95, 0.05], [0.3, 0.7]])
+FIRM_PARTITIONS = [Partition(0.02, np.arange(6)), Partition(0.1, np.array([0, 0, 0, 1, 1, 1])),
+                   Partition(0.2, np.zeros(6, dtype=int))]
+
+
+def test_soft_anchoring_keeps_faces_the_evidence_holds_for_another_prompt():
+    _, plain = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), "full", anchor="off")
+    np.testing.assert_array_equal(plain, [0, 0, 0, 0, 0, 1])  # GeoFusion is right here
+    _, hard = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), "full", anchor="hard")
+    np.testing.assert_array_equal(hard, [0, 0, 0, 1, 1, 1])  # the hard anchor hands the whole coarse part over
+    _, default = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6))
+    np.testing.assert_array_equal(default, plain)  # the default (soft) anchoring leaves the firm faces alone
+
+
+def test_soft_anchoring_prior_decides_close_faces_and_agreeing_levels_decide_outright():
+    # one level, two parts; face shares of "handle" 0.45 (close) and 0.1 (firmly "body") on the handle's part
+    scores = np.array([[1.0, 0.0], [1.0, 0.0], [0.55, 0.45], [0.9, 0.1]])
+    levels = [Partition(0.1, np.array([0, 0, 1, 1]))]
+    start = np.zeros(4, dtype=int)
+    np.testing.assert_array_equal(soft_anchor_prompts(start, scores, levels, np.ones(4), prior=0.5), [0, 0, 1, 0])
+    np.testing.assert_array_equal(soft_anchor_prompts(start, scores, levels, np.ones(4), prior=0.0), start)
+    # the same part anchored on both levels: the full prior, enough for any face
+    both = levels + [Partition(0.05, np.array([0, 1, 2, 2]))]
+    np.testing.assert_array_equal(soft_anchor_prompts(start, scores, both, np.ones(4), prior=1.0, n_levels=2),
+                                  [0, 0, 1, 1])
+    with pytest.raises(ValueError, match="prior"):
+        soft_anchor_prompts(start, scores, levels, np.ones(4), prior=-1.0)
+
+
+def test_anchoring_modes():
+    assert DEFAULT_ANCHOR in ANCHOR_MODES and "off" in ANCHOR_MODES and "hard" in ANCHOR_MODES
+    _, off = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), anchor=False)
+    _, default = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), anchor=True)
+    _, named = refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), anchor=DEFAULT_ANCHOR)
+    np.testing.assert_array_equal(default, named)
+    np.testing.assert_array_equal(off, refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), anchor="off")[1])
+    with pytest.raises(ValueError, match="anchoring mode"):
+        refine_labels(FIRM_SCORES, FIRM_PARTITIONS, np.ones(6), anchor="always")
 
 
 def test_agreed_labels_keep_only_what_all_labellings_say():

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from seggrasp.grasp import ROBOTIQ_2F85, AntipodalConfig, AntipodalSampler, GraspSet
+from seggrasp.grasp.antipodal import gravity_torque
 
 MU = 0.5
 TABLE = np.array([0.0, 0.0, 1.0, 0.0])  # object frame: table top at z = 0, normal up
@@ -113,8 +114,54 @@ def test_ring_grasps_do_not_close_across_the_hole() -> None:
     ring = _on_table(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.05, sections=64))
     g = AntipodalSampler().generate(ring, seed=1, table_plane=TABLE)
     assert len(g) > 0
-    # every grasp pinches the 10 mm wall, never the 80 mm outer diameter through the hole
-    assert g.widths.max() < 0.02
+    # every grasp pinches the 10 mm wall (the flat 22 mm pads also span the wall's curvature, which the footprint
+    # adds), never the 80 mm outer diameter through the hole
+    assert g.widths.max() < 0.03
+
+
+def _hammer() -> tuple[trimesh.Trimesh, np.ndarray, float]:
+    """A hammer lying on the table: a light 25 mm handle (0.1 kg) along x and a heavy steel head (0.6 kg) at +x."""
+    handle = trimesh.creation.box((0.26, 0.025, 0.025))
+    handle.apply_translation([0.0, 0.0, 0.0125])
+    head = trimesh.creation.box((0.03, 0.10, 0.03))
+    head.apply_translation([0.145, 0.0, 0.015])
+    com = (0.1 * handle.center_mass + 0.6 * head.center_mass) / 0.7
+    return trimesh.util.concatenate([handle, head]), com, 0.7
+
+
+def test_hammer_grasp_holds_against_the_heavy_head() -> None:
+    mesh, com, mass = _hammer()
+    config = AntipodalConfig(friction_coefficient=MU)
+    sampler = AntipodalSampler(config)
+    torque = lambda g: gravity_torque(g.poses[:1], com, TABLE[:3], mass)[0]  # noqa: E731
+    best = sampler.generate(mesh, seed=2, table_plane=TABLE, center_of_mass=com, mass=mass)
+    assert len(best) > 0
+    assert torque(best) < config.torsion_limit
+    # the uniform-density guess puts the centre of mass in the handle's middle: its first grasp would not hold
+    naive = sampler.generate(mesh, seed=2, table_plane=TABLE, mass=mass)
+    assert torque(naive) > config.torsion_limit
+
+
+def test_contacts_stay_off_the_pad_ends() -> None:
+    mesh = _on_table(trimesh.creation.box((0.03, 0.03, 0.012)))  # a flat part: the fingertips meet the table
+    g = AntipodalSampler(AntipodalConfig(friction_coefficient=MU)).generate(mesh, seed=0, table_plane=TABLE)
+    assert len(g) > 0
+    along_pad = np.einsum("nij,ni->nj", g.poses[:, :3, :3], g.contacts.mean(axis=1) - g.poses[:, :3, 3])[:, 2]
+    assert np.abs(along_pad).max() <= 0.01875 - 0.006 + 1e-6  # >= 6 mm from either end of the 37.5 mm pad
+
+
+def test_footprint_gives_the_width_the_pads_close_on() -> None:
+    # a 20 mm stem under a 60 mm wide, 10 mm thick cap: pads on the stem just below the cap sweep the cap too
+    stem = trimesh.creation.box((0.02, 0.02, 0.06))
+    stem.apply_translation([0.0, 0.0, 0.03])
+    cap = trimesh.creation.box((0.06, 0.02, 0.01))
+    cap.apply_translation([0.0, 0.0, 0.065])
+    mesh = trimesh.util.concatenate([stem, cap])
+    g = AntipodalSampler(AntipodalConfig(friction_coefficient=MU)).generate(mesh, seed=0, table_plane=TABLE)
+    assert len(g) > 0
+    near_cap = (np.abs(g.poses[:, 2, 3] - 0.06) < 0.01) & (np.abs(g.poses[:, 0, 0]) > 0.95)  # closing along x
+    assert near_cap.any()
+    assert np.all(g.widths[near_cap] > 0.05)  # the cap, not the 20 mm stem, sets the width
 
 
 def test_bad_table_plane_is_rejected() -> None:

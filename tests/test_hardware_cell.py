@@ -11,6 +11,7 @@ import pytest
 from fakes_hardware import (EXAMPLE_CONFIG, FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, box_on_table,
                             cell_config_for_fakes, example_config, synthetic_frames, write_config)
 from hardware import ConnectionLostError, RealCell
+from hardware.cell import judge_hold
 from hardware.config import load_config
 from hardware.ur import matrix_from_ur_pose
 from seggrasp.cell import Cell
@@ -103,7 +104,7 @@ def test_object_mesh_points_to_perception(rig):
 def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
     rig.cell.reset()
     outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
-    assert outcome.reachable and outcome.lifted
+    assert outcome.reachable and outcome.lifted and outcome.failure == ""
     assert outcome.lift_height == pytest.approx(0.2)
     assert outcome.contacts_observed is False and len(outcome.touched_faces) == 0
     assert outcome.contact_force == pytest.approx(rig.config.gripper.force)
@@ -141,7 +142,7 @@ def test_object_slipping_during_the_lift_is_not_lifted(rig):
     rig.ur.on_motion = lambda kind, target: rig.server.slip() if target[2] > 0.2 else None
     outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert outcome.reachable and not outcome.lifted and outcome.lift_height == 0.0
-    assert "not held" in outcome.message
+    assert "not held" in outcome.message and outcome.failure == "slipped"
     assert rig.heights() == [0.15, 0.05, 0.25]  # nothing to put back
 
 
@@ -151,6 +152,7 @@ def test_empty_grasp_is_not_lifted(tmp_path):
         rig.cell.reset()
         outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
         assert outcome.reachable and not outcome.lifted and "closed on an object: False" in outcome.message
+        assert outcome.failure == "empty_close"
     finally:
         rig.close()
 
@@ -165,7 +167,7 @@ def test_refused_grasps_send_no_motion(rig, grasp, width, reason):
     rig.cell.reset()
     motions, lines = len(rig.ur.motions), len(rig.server.lines)
     outcome = rig.cell.execute(grasp, width)
-    assert not outcome.reachable and not outcome.lifted
+    assert not outcome.reachable and not outcome.lifted and outcome.failure == "unreachable"
     assert reason in outcome.message
     assert len(rig.ur.motions) == motions and len(rig.server.lines) == lines
 
@@ -286,3 +288,10 @@ def test_wrist_camera_frames_follow_the_gripper(tmp_path):
     finally:
         cell.close()
         server.stop()
+
+
+def test_hold_judged_from_the_gripper():
+    assert judge_hold(True, True, 0.030, 0.029) == ""
+    assert judge_hold(False, False, 0.0, 0.0) == "empty_close"
+    assert judge_hold(True, False, 0.030, 0.0) == "slipped"
+    assert judge_hold(True, True, 0.030, 0.012) == "slipped"  # the fingers closed further: it slid out

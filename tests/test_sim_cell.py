@@ -40,8 +40,10 @@ def test_top_down_grasp_lifts_the_box_and_touches_its_sides(cell):
     cell.reset(seed=5)
     _, T_world_obj = cell.object_mesh()
     outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
-    assert outcome.reachable and outcome.lifted, outcome.message
+    assert outcome.reachable and outcome.lifted and outcome.failure == "", outcome.message
     assert outcome.lift_height == pytest.approx(0.20, abs=0.015)
+    # every touched face carries the normal force of its contacts
+    assert len(outcome.touched_weights) == len(outcome.touched_faces) and outcome.touched_weights.sum() > 20.0
     assert 40.0 < outcome.contact_force < 2 * 235.0  # summed over both fingers; the 2F-85 squeezes 20-235 N
     labels = cell.current_object.labels
     touched = labels.face_labels[outcome.touched_faces]
@@ -61,7 +63,7 @@ def test_grasp_in_empty_air_is_not_a_lift(cell):
     T = top_down_grasp(T_world_obj, 0.06)
     T[1, 3] += 0.15  # 15 cm beside the box
     outcome = cell.execute(T, 0.05)
-    assert outcome.reachable and not outcome.lifted
+    assert outcome.reachable and not outcome.lifted and outcome.failure == "empty_close"
     assert outcome.lift_height < 0.01
     assert len(outcome.touched_faces) == 0
 
@@ -74,7 +76,7 @@ def test_grasp_below_the_table_is_refused(cell):
     T[2, 3] = -0.05
     start = cell.robot.configuration()
     outcome = cell.execute(T, 0.05)
-    assert not outcome.reachable and "table" in outcome.message
+    assert not outcome.reachable and "table" in outcome.message and outcome.failure == "collision"
     _, T_after = cell.object_mesh()
     np.testing.assert_allclose(T_after, T_world_obj, atol=1e-6)  # nothing moved
     np.testing.assert_allclose(cell.robot.configuration(), start)  # the robot is back where it was
@@ -87,7 +89,7 @@ def test_arm_reports_unreachable_pose(box):
         T[0, 3] = 1.5  # far beyond the UR5's reach
         outcome = cell.execute(T, 0.05)
         assert not outcome.reachable and not outcome.lifted
-        assert "unreachable" in outcome.message
+        assert "unreachable" in outcome.message and outcome.failure == "unreachable"
 
 
 def test_same_seed_same_scene_frames_and_outcome(box):
@@ -165,3 +167,40 @@ def test_two_cells_coexist_with_their_own_clients(box):
         _, T_second_after = second.object_mesh()
         np.testing.assert_array_equal(T_second_after, T_second)  # the grasp happened in the other world only
         assert first.object_mesh()[1][2, 3] > 0.18
+
+
+def test_bar_held_far_from_its_centre_of_mass_turns_in_the_fingers(tmp_path):
+    # a 30 cm, 0.6 kg bar lying flat, grasped 12 cm from its middle: it lifts, but swings about the grasp axis
+    bar = primitive_object("box", (0.30, 0.03, 0.03), tmp_path, mass=0.6, object_id="bar")
+    with SimCell([bar], embodiment="floating", seed=0, image_size=IMAGE) as cell:
+        _, T_world_obj = cell.object_mesh()
+        T = top_down_grasp(T_world_obj, 0.027)  # the pads end 8 mm above the table
+        T[:3, 0] = T_world_obj[:3, 1]  # close across the bar (its y axis)
+        T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
+        T[:3, 3] += 0.12 * T_world_obj[:3, 0]
+        outcome = cell.execute(T, 0.03)
+        assert outcome.reachable and not outcome.lifted
+        assert outcome.failure in ("rotated", "slipped") and outcome.failure in outcome.message
+
+
+def test_record_next_writes_a_picture_strip_of_the_next_trial_only(cell, tmp_path):
+    from PIL import Image
+
+    from sim.recording import FRAME_SIZE, STAGES
+
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    path = tmp_path / "strip.png"
+    cell.record_next(path)
+    outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    assert outcome.lifted
+    strip = np.asarray(Image.open(path).convert("RGB"))
+    assert strip.shape[1] == FRAME_SIZE[0] * len(STAGES) and strip.shape[0] > FRAME_SIZE[1]
+    # each stage shows the scene (not a blank frame), and the frames differ as the gripper moves
+    frames = [strip[: FRAME_SIZE[1], i * FRAME_SIZE[0] : (i + 1) * FRAME_SIZE[0]].astype(float) for i in range(4)]
+    assert all(frame.std() > 10 for frame in frames)
+    assert np.abs(frames[0] - frames[3]).mean() > 1.0
+    path.unlink()
+    cell.reset(seed=5)
+    cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    assert not path.exists()  # one-shot

@@ -38,7 +38,7 @@ from typing import Sequence
 import numpy as np
 
 from seggrasp.detect.base import Detections
-from seggrasp.labels import UNKNOWN, PartLabels
+from seggrasp.labels import UNKNOWN, PartLabels, find_prompt
 from seggrasp.views import View
 
 #: Prominence (part pixels / object pixels) from which a part counts as fully visible for confidence and misses.
@@ -123,10 +123,8 @@ class SimulatedDetector:
 
     def detect(self, views: Sequence[View], prompts: Sequence[str]) -> list[Detections]:
         """One `Detections` per view; `prompt_index` refers to `prompts`."""
-        lowered_parts = [part.lower() for part in self.gt.parts]
-        part_of_prompt = [
-            lowered_parts.index(p.strip().lower()) if p.strip().lower() in lowered_parts else UNKNOWN for p in prompts
-        ]
+        found = [find_prompt(self.gt.parts, p) for p in prompts]
+        part_of_prompt = [UNKNOWN if index is None else index for index in found]
         return [self._detect_view(index, view, part_of_prompt) for index, view in enumerate(views)]
 
     def _detect_view(self, view_index: int, view: View, part_of_prompt: list[int]) -> Detections:

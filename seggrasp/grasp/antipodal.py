@@ -1,15 +1,24 @@
 """Analytic antipodal grasp sampler for a parallel gripper (no learned weights).
 
-1. Sample surface points (area-weighted, seeded) with their face normals.
+1. Sample surface points (area-weighted, seeded; half of them concentrated near the centre of mass) with their face
+   normals.
 2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
-5. Reject poses whose finger, palm or wrist boxes contain object surface points (a dense surface sample) or dip
-   below an optional table plane. A rejected pose is retried pulled back along its approach, so that the contacts
-   sit between the pad centres and the fingertips (`contact_depths`): flat objects on a table need that.
-6. Score = weighted sum of antipodality, closeness of the contacts' midpoint to the centre of mass, when a table
-   plane is given how much the approach points down onto the table (top-down grasps reach and lift best), minus
-   a little for contacts away from the pad centres.
+5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
+   from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
+   at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
+   below an optional table plane.
+6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
+   grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
+   between them.
+7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
+   cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
+   grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
+   (`torsion_limit`) ranks after every grasp that holds.
+8. Score = weighted sum of antipodality, closeness of the grasp to the centre of mass, when a table plane is
+   given how much the approach points down onto the table (top-down grasps reach and lift best) minus the
+   gravity torque as a fraction of the limit, minus a little for contacts away from the pad centres.
 """
 
 from __future__ import annotations
@@ -20,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 
 LOG = logging.getLogger(__name__)
@@ -36,8 +46,10 @@ COARSE_STRIDE = 8
 class AntipodalConfig:
     """Sampler parameters. `friction_coefficient` sets the friction-cone half-angle atan(mu)."""
 
-    n_surface_samples: int = 3000
+    n_surface_samples: int = 6000
     n_approaches: int = 8
+    near_com_fraction: float = 0.5  # of the surface samples drawn near the centre of mass
+    near_com_scale: float = 0.05  # m
     friction_coefficient: float = 0.5
     min_width: float = 0.001
     width_margin: float = 0.005  # contact distance must stay this far below the stroke
@@ -45,7 +57,19 @@ class AntipodalConfig:
     min_collision_points: int = 1500
     max_collision_points: int = 6000
     table_clearance: float = 0.0035
-    contact_depths: tuple[float, ...] = (0.0, 0.009, 0.018)  # contacts this far from the pad centres, tipwards
+    # contacts this far from the pad centres (m, + towards the fingertips), tried in this order (deepest first);
+    # the 37.5 mm pads leave >= 6.75 mm to either end
+    contact_depths: tuple[float, ...] = (-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012)
+    pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
+    pad_half_length: float = 0.01875
+    footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
+    # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
+    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius (0.1 N m at 40 N:
+    # issue 12 measured on the twin that grasps above it mostly turn or drop, below it mostly hold)
+    default_mass: float = 0.3
+    grip_force: float = DEFAULT_GRIP_FORCE
+    torsion_radius: float = 0.0025
+    weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
     weight_top_down: float = 0.2
@@ -57,8 +81,13 @@ class AntipodalConfig:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
         if self.n_surface_samples < 1 or self.n_approaches < 1:
             raise ValueError("n_surface_samples and n_approaches must be at least 1")
-        if not self.contact_depths or min(self.contact_depths) < 0:
-            raise ValueError(f"contact_depths must be non-negative and not empty, got {self.contact_depths}")
+        if not self.contact_depths or max(abs(d) for d in self.contact_depths) >= self.pad_half_length:
+            raise ValueError(f"contact_depths must lie on the pad (|d| < {self.pad_half_length}), got {self.contact_depths}")
+
+    @property
+    def torsion_limit(self) -> float:
+        """Gravity torque (N m) about the grasp axis the pads' friction holds."""
+        return 2.0 * self.friction_coefficient * self.grip_force * self.torsion_radius
 
 
 class AntipodalSampler:
@@ -76,8 +105,12 @@ class AntipodalSampler:
         seed: int = 0,
         table_plane: np.ndarray | None = None,
         center_of_mass: np.ndarray | None = None,
+        mass: float | None = None,
     ) -> GraspSet:
-        """Antipodal grasps on `mesh` sorted best first; the same seed gives the same grasps."""
+        """Antipodal grasps on `mesh` sorted best first; the same seed gives the same grasps.
+
+        `center_of_mass` (mesh frame) and `mass` (kg) feed the gravity-torque term; None takes the mesh's
+        uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`."""
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError("AntipodalSampler needs a non-empty trimesh.Trimesh")
         cfg = self.config
@@ -86,7 +119,8 @@ class AntipodalSampler:
         normals_sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
         face_normals = normals_sign * np.asarray(mesh.face_normals)
 
-        points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples, seed=int(rng.integers(2**31)))
+        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
+        points, faces = _surface_samples(mesh, cfg, com, rng)
         normals = face_normals[faces]
         p, q, n_p, n_q = _opposite_contacts(mesh, points, normals, face_normals)
         width = np.linalg.norm(q - p, axis=1)
@@ -118,40 +152,83 @@ class AntipodalSampler:
             if plane is not None:
                 free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
             free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
+            # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
+            free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
             depth_index[todo[free]] = index
         free = depth_index >= 0
         if not free.any():
             LOG.info("antipodal sampler: every candidate pose collides")
             return GraspSet.empty()
-        contact_depth = np.asarray(cfg.contact_depths, dtype=np.float64)[np.maximum(depth_index, 0)]
-        poses = axis_poses.copy()
+        contact_depth = np.asarray(cfg.contact_depths, dtype=np.float64)[depth_index[free]]
+        poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
+        contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
+        widths = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud)
+        fits = widths <= self.gripper.max_opening - cfg.width_margin  # the footprint may be wider than the stroke
+        poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
+        contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
+        if not len(poses):
+            return GraspSet.empty()
 
-        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
-        centre_distance = np.linalg.norm(axis_poses[:, :3, 3] - com, axis=1)
-        closeness = 1.0 - np.clip(centre_distance / radius, 0.0, 1.0)
-        score = cfg.weight_antipodality * antipodality[pair_of] + cfg.weight_center_of_mass * closeness
-        score -= cfg.weight_contact_depth * contact_depth / max(max(cfg.contact_depths), 1e-9)
+        closeness = 1.0 - np.clip(np.linalg.norm(poses[:, :3, 3] - com, axis=1) / radius, 0.0, 1.0)
+        score = cfg.weight_antipodality * antipodality[pair_index] + cfg.weight_center_of_mass * closeness
+        score -= cfg.weight_contact_depth * np.abs(contact_depth) / max(np.abs(cfg.contact_depths).max(), 1e-9)
         if plane is not None:
-            top_down = np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
-            score = score + cfg.weight_top_down * top_down
-        contacts = np.stack([p[pair_of], q[pair_of]], axis=1)
-        grasps = GraspSet(poses[free], widths[free], score[free], contacts[free]).sorted_by_score()
+            score += cfg.weight_top_down * np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
+            torque = gravity_torque(poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
+            score -= cfg.weight_torque * np.minimum(torque / cfg.torsion_limit, 1.0)
+            score -= 2.0 * (torque > cfg.torsion_limit)  # ranks after every grasp whose torque the pads hold
+        grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
         if cfg.max_grasps is not None:
             grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
-        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(poses), len(grasps))
+        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(axis_poses), len(grasps))
         return grasps
 
-    def _collision_free(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    def _apply_footprint(
+        self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray
+    ) -> np.ndarray:
+        """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
+        contact pair, the pads stop on those: move the contacts there, centre the pose between them and return
+        the widths they give (poses and contacts are updated in place)."""
+        cfg = self.config
+        for start in range(0, len(poses), COLLISION_CHUNK):
+            sl = slice(start, start + COLLISION_CHUNK)
+            rotations = poses[sl, :3, :3]
+            local = np.matmul(cloud[None], rotations) - np.matmul(poses[sl, None, :3, 3], rotations)  # (G, M, 3)
+            inside = (
+                (np.abs(local[..., 1]) <= cfg.pad_half_width) & (np.abs(local[..., 2]) <= cfg.pad_half_length)
+                & (np.abs(local[..., 0]) <= 0.5 * openings[sl, None])
+            )
+            x = local[..., 0]
+            low = np.where(inside, x, np.inf).argmin(axis=1)
+            high = np.where(inside, x, -np.inf).argmax(axis=1)
+            rows = np.arange(len(local))
+            span = np.where(inside.any(axis=1), x[rows, high] - x[rows, low], 0.0)
+            wider = span > widths[sl] + 2.0 * cfg.footprint_tolerance
+            index = np.flatnonzero(wider) + start
+            if len(index):
+                centre = 0.5 * (x[wider, high[wider]] + x[wider, low[wider]])
+                poses[index, :3, 3] += centre[:, None] * poses[index, :3, 0]
+                contacts[index, 0] = cloud[low[wider]]
+                contacts[index, 1] = cloud[high[wider]]
+                widths[index] = span[wider]
+        return widths
+
+    def _collision_free(
+        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
+    ) -> np.ndarray:
         """True where no cloud point lies inside a finger, the palm or the wrist. A sparse subset of the cloud
         rejects most colliding poses cheaply; the survivors are checked against the whole cloud."""
-        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE])
-        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud)
+        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE], closed)
+        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud, closed)
         return free
 
-    def _cloud_outside_gripper(self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses)."""
+    def _cloud_outside_gripper(
+        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
+    ) -> np.ndarray:
+        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses); `closed`
+        tests only the finger boxes behind the pads (the pads themselves close on the object)."""
         g = self.gripper
         free = np.ones(len(poses), dtype=bool)
         cloud32 = cloud.astype(np.float32)
@@ -163,24 +240,31 @@ class AntipodalSampler:
             local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
             ax, ay, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
             hit = np.zeros(ax.shape, dtype=bool)
-            for inner, outer, half_y, z_min, z_max in g.finger_boxes:  # mirrored: test |x|
+            for inner, outer, half_y, z_min, z_max in g.finger_boxes[1 if closed else 0 :]:  # mirrored: test |x|
                 hit |= (ax >= half + inner) & (ax <= half + outer) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
-            for half_x, half_y, z_min, z_max in g.centre_boxes:
+            for half_x, half_y, z_min, z_max in () if closed else g.centre_boxes:
                 hit |= (ax <= half_x) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
             free[start : start + COLLISION_CHUNK] = ~hit.any(axis=1)
         return free
 
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
         """True where every corner of every gripper box is at least `clearance` above the plane."""
-        ok = np.ones(len(poses), dtype=bool)
-        for opening in np.unique(openings):
-            sel = openings == opening
-            boxes = self.gripper.boxes(float(opening))  # (B, 2, 3)
-            corners = np.array([[bx[i, 0], bx[j, 1], bx[k, 2]] for bx in boxes for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-            world = np.einsum("gij,mj->gmi", poses[sel, :3, :3], corners) + poses[sel, None, :3, 3]
-            heights = world @ plane[:3] + plane[3]
-            ok[sel] = heights.min(axis=1) >= clearance
-        return ok
+        corners = _box_corners(self.gripper.boxes(0.0))  # (B * 8, 3) at zero opening
+        # the finger boxes move outwards by half the opening along x: -x finger first, then +x (GripperGeometry.boxes)
+        n_finger = 8 * len(self.gripper.finger_boxes)
+        shift = np.zeros(len(corners))
+        shift[:n_finger], shift[n_finger : 2 * n_finger] = -0.5, 0.5
+        up_in_gripper = np.einsum("gji,j->gi", poses[:, :3, :3], plane[:3])  # plane normal in each gripper frame
+        heights = corners @ up_in_gripper.T  # (B * 8, G)
+        heights += np.outer(shift, openings) * up_in_gripper[:, 0]
+        heights += poses[:, :3, 3] @ plane[:3] + plane[3]
+        return heights.min(axis=0) >= clearance
+
+
+def _box_corners(boxes: np.ndarray) -> np.ndarray:
+    """The 8 corners of each box (B, 2, 3) [min, max] -> (B * 8, 3)."""
+    pick = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    return np.stack([boxes[:, pick[:, 0], 0], boxes[:, pick[:, 1], 1], boxes[:, pick[:, 2], 2]], axis=-1).reshape(-1, 3)
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
@@ -240,6 +324,28 @@ def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> 
     count = int(np.clip(mesh.area / cfg.collision_point_spacing**2, cfg.min_collision_points, cfg.max_collision_points))
     points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     return points
+
+
+def _surface_samples(
+    mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Area-weighted surface points; `near_com_fraction` of them drawn with the face weights also falling off
+    with the distance from the centre of mass (scale `near_com_scale`), where the grasps that hold lie."""
+    n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples))
+    points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples - n_near, seed=int(rng.integers(2**31)))
+    if n_near == 0:
+        return points, faces
+    distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
+    weight = mesh.area_faces * np.exp(-((distance / cfg.near_com_scale) ** 2))
+    near, near_faces = trimesh.sample.sample_surface(mesh, n_near, face_weight=weight, seed=int(rng.integers(2**31)))
+    return np.concatenate([points, near]), np.concatenate([faces, near_faces])
+
+
+def gravity_torque(poses: np.ndarray, com: np.ndarray, up: np.ndarray, mass: float) -> np.ndarray:
+    """|torque| (N m) of the weight at `com` about each grasp's closing axis (x) through its origin, with `up`
+    the direction away from the table (all in the poses' frame)."""
+    lever = np.asarray(com, dtype=np.float64)[None] - poses[:, :3, 3]
+    return np.abs(np.einsum("ij,ij->i", np.cross(lever, -9.81 * mass * up[None]), poses[:, :3, 0]))
 
 
 def _center_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:

@@ -1,0 +1,128 @@
+"""What a harness (the benchmark, the gym env, a lab script) hands an episode besides the cell: the detector it
+chose and, for a labelled object, the ground truth that scores the trials. The method itself never sees either
+ground truth or how its detector was made.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import trimesh
+
+from seggrasp.cell import GraspOutcome
+from seggrasp.detect import make_detector
+from seggrasp.detect.base import Detector
+from seggrasp.labels import PartLabels
+from seggrasp.mesh import PreparedMesh
+from seggrasp.method import PartPlan
+from seggrasp.objects import ObjectModel
+
+
+@dataclass(frozen=True)
+class DetectorSpec:
+    """Which detector a harness chose: `name` as `make_detector` takes it; `preset`/`seed` for the simulated
+    detector (which boxes parts from ground truth), `weights` for the real ones. `seed` also seeds the camera rig."""
+
+    name: str = "simulated"
+    preset: str = "typical"
+    weights: str | None = None
+    seed: int = 0
+
+    @property
+    def label(self) -> str:
+        """How results name the detector, e.g. `simulated:typical` or `owlv2`."""
+        return f"{self.name}:{self.preset}" if self.name == "simulated" else self.name
+
+    @property
+    def needs_truth(self) -> bool:
+        return self.name == "simulated"
+
+    def build(self, gt_labels: PartLabels | None) -> Detector:
+        """The detector; `gt_labels` (one per face of the rendered working mesh) is required for `simulated`."""
+        if self.needs_truth and gt_labels is None:
+            raise ValueError("the simulated detector needs ground-truth labels; this object has none")
+        return make_detector(self.name, weights=self.weights, gt_labels=gt_labels, preset=self.preset, seed=self.seed)
+
+    def for_mesh(self, prompts: Sequence[str], rendered: PreparedMesh, truth_on_source: np.ndarray | None) -> Detector:
+        """The detector for views of `rendered`, given the true prompt label of each of its source faces."""
+        gt = None
+        if truth_on_source is not None:
+            gt = PartLabels(list(prompts), rendered.from_source(np.asarray(truth_on_source, dtype=np.int64)))
+        return self.build(gt)
+
+
+@dataclass
+class GroundTruth:
+    """The labelled mesh of an object (object frame) with the prompt index of each face (-1 elsewhere).
+
+    `true_pose` returns the labelled object's pose in the world; only a simulator knows it, and it is needed only
+    to score a mesh the episode perceived from cameras (which lives in the world frame).
+    """
+
+    mesh: trimesh.Trimesh
+    labels: np.ndarray
+    true_pose: Callable[[], np.ndarray] | None = None
+
+    @classmethod
+    def of_object(
+        cls, model: ObjectModel, prompts: Sequence[str], true_pose: Callable[[], np.ndarray] | None = None
+    ) -> "GroundTruth | None":
+        """Ground truth of a twin object for `prompts` (None when the object has no labels)."""
+        if model.labels is None:
+            return None
+        return cls(model.mesh, model.labels.remap_to(list(prompts)), true_pose)
+
+    def _T_truth_world(self, T_world_obj: np.ndarray, perceived: bool) -> np.ndarray:
+        if not perceived:
+            return np.linalg.inv(T_world_obj)
+        if self.true_pose is None:
+            raise ValueError("scoring a perceived mesh needs the labelled object's true pose (a simulator)")
+        return np.linalg.inv(np.asarray(self.true_pose(), dtype=np.float64))
+
+    def on_mesh(self, mesh: trimesh.Trimesh, T_world_obj: np.ndarray, perceived: bool, name: str) -> np.ndarray:
+        """Prompt labels per face of the planning mesh (transferred from the labelled mesh when it was perceived)."""
+        if not perceived:
+            if len(mesh.faces) != len(self.labels):
+                raise ValueError(f"{name}: the cell's mesh has {len(mesh.faces)} faces but the labels {len(self.labels)}")
+            return self.labels
+        # a perceived mesh lives in the world frame (its T_world_obj is the identity)
+        return transfer_labels(self.mesh, self.labels, mesh, self._T_truth_world(T_world_obj, perceived))
+
+    def contacts_on_part(self, contacts_world: np.ndarray, T_world_obj: np.ndarray, perceived: bool, k: int) -> bool:
+        """Whether both planned finger contacts (world frame, (2, 3)) lie nearest to faces of prompt `k`."""
+        T = self._T_truth_world(T_world_obj, perceived)
+        contacts = np.asarray(contacts_world, dtype=np.float64).reshape(2, 3) @ T[:3, :3].T + T[:3, 3]
+        _, _, nearest = trimesh.proximity.closest_point(self.mesh, contacts)
+        return bool((self.labels[np.asarray(nearest, dtype=np.int64)] == k).all())
+
+    def touched_on_part(self, outcome: GraspOutcome, k: int) -> bool | None:
+        """Whether prompt `k`'s true part carries most of what the pads touched (None if contacts are unobserved).
+
+        Each touched face counts with its `touched_weights` entry (contact force or area) when the cell reports
+        them, else with weight one.
+        """
+        if not outcome.contacts_observed:
+            return None
+        touched = np.asarray(outcome.touched_faces, dtype=np.int64)
+        if len(touched) == 0:
+            return False
+        weights = np.asarray(outcome.touched_weights, dtype=np.float64)
+        if len(weights) != len(touched) or weights.sum() <= 0:
+            weights = np.ones(len(touched))
+        on_part = self.labels[touched] == k
+        return bool(weights[on_part].sum() >= 0.5 * weights.sum())
+
+    def oracle_plan(self, labels_on_mesh: np.ndarray) -> PartPlan:
+        """The `oracle` method's plan: the true labels of the planning mesh."""
+        return PartPlan("oracle", "ground-truth", np.array(labels_on_mesh, dtype=np.int64, copy=True))
+
+
+def transfer_labels(
+    source_mesh: trimesh.Trimesh, source_labels: np.ndarray, target_mesh: trimesh.Trimesh, T_source_target: np.ndarray
+) -> np.ndarray:
+    """Labels of `target_mesh`'s faces from the nearest face of `source_mesh` (e.g. the twin -> a perceived mesh)."""
+    centres = target_mesh.triangles_center @ T_source_target[:3, :3].T + T_source_target[:3, 3]
+    _, _, nearest = trimesh.proximity.closest_point(source_mesh, centres)
+    return np.asarray(source_labels, dtype=np.int64)[nearest]

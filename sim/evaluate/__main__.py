@@ -1,0 +1,7 @@
+"""`python -m sim.evaluate`."""
+
+import sys
+
+from sim.evaluate.cli import main
+
+sys.exit(main())

@@ -1,0 +1,56 @@
+"""The settings of one evaluation run (`RunConfig`) and the choices the command line offers."""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field, replace
+
+from seggrasp.grasp.select import TOP_K
+from seggrasp.truth import DetectorSpec
+
+DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "oracle", "shapegrasp")
+SIMULATED_PRESETS = ("perfect", "typical", "hard")
+REAL_DETECTORS = ("grounding-dino", "owlv2")
+QUICK_METHODS = ("oracle", "seggrasp", "coarse")
+QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
+QUICK_TOP_K = 3
+#: Settings a resumed run must share with the run it continues (methods and objects are merged instead).
+RESUME_KEYS = ("detector", "weights", "embodiment", "seed", "top_k", "backend", "perceive", "prompts")
+
+
+@dataclass
+class RunConfig:
+    """Everything that defines one evaluation run."""
+
+    methods: list[str]
+    objects: list[str]
+    detector: str = "typical"
+    weights: str | None = None
+    embodiment: str = "floating"
+    seed: int = 0
+    top_k: int = TOP_K
+    backend: str = "sim"
+    config: str | None = None
+    perceive: bool = False
+    dry_run: bool = False
+    quick: bool = False
+    prompts: list[str] = field(default_factory=list)
+
+    def detector_spec(self) -> DetectorSpec:
+        """The run's detector (seeded with the run seed)."""
+        if self.detector in SIMULATED_PRESETS:
+            return DetectorSpec("simulated", preset=self.detector, seed=self.seed)
+        return DetectorSpec(self.detector, weights=self.weights, seed=self.seed)
+
+    def object_detector(self, object_id: str) -> DetectorSpec:
+        """The detector of one object: seeded with the object's scene seed.
+
+        With one shared seed every object would see the same draws of the detector's error model (e.g. the same
+        prompt boxed as the whole object in the same view), so a whole run would be one correlated sample.
+        """
+        return replace(self.detector_spec(), seed=scene_seed_of(object_id, self.seed))
+
+
+def scene_seed_of(object_id: str, seed: int) -> int:
+    """The scene (object pose) seed of an object: fixed for a run seed, different between objects."""
+    return int(seed) * 100_003 + zlib.crc32(object_id.encode("utf-8")) % 100_000

@@ -1,0 +1,249 @@
+"""The report of a run: Tables I-III, the failures per category and the threshold curve, as summary.json and
+summary.md, read back from the result files.
+
+Per-request numbers are the headline: Part Sel. and Suc. over all top-k slots (a slot without a grasp is a miss:
+a method that leaves a prompt without a grasp has failed that request), top-1 Suc. (the first slot of every
+request: what a user gets from one try), and beside them the paper's executed-only Part Sel., Suc. and sigma^2.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+
+from seggrasp.io import atomic_write_json, atomic_write_text
+from seggrasp.method import RECIPES
+from seggrasp.metrics import mean_over_categories, part_selection_accuracy, quaternion_variance, success_rate
+from sim.evaluate.config import RunConfig
+from sim.evaluate.plots import write_plots
+from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key
+
+ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "anchored", "seggrasp")
+UNNAMED_FAILURE = "other"
+
+
+def _method_order(config_methods: Sequence[str], seen: Iterable[str]) -> list[str]:
+    ordered = list(config_methods)
+    return ordered + sorted(set(seen) - set(ordered))
+
+
+def summarise(trials: list[dict], segmentations: list[dict], curves: list[dict], methods: Sequence[str]) -> dict:
+    """Tables I-III, the failures and the threshold curve as one JSON-ready dict."""
+    summary: dict = {"methods": {}, "curve": _summarise_curves(curves)}
+    for method in _method_order(methods, [r["method"] for r in trials] + [r["method"] for r in segmentations]):
+        segs = [r for r in segmentations if r["method"] == method]
+        rows = [r for r in trials if r["method"] == method]
+        entry: dict = {"n_objects": len({r["object_id"] for r in rows} | {r["object_id"] for r in segs})}
+        if segs:
+            entry["miou"] = mean_over_categories([(r["category"], r["miou"]) for r in segs])
+            entry["miou_faces"] = mean_over_categories([(r["category"], r["miou_faces"]) for r in segs])
+        if rows:
+            entry.update(grasp_metrics(rows))
+            categories = sorted({r["category"] for r in rows})
+            entry["categories"] = {c: grasp_metrics([r for r in rows if r["category"] == c]) for c in categories}
+        entry["detector"] = ", ".join(sorted({r["detector"] for r in rows + segs}))
+        summary["methods"][method] = entry
+    return summary
+
+
+def failure_name(record: dict) -> str:
+    """Why a trial failed ("" for a success); records written before trials named their failure are classified
+    the same way the episode does, as far as they allow."""
+    if record.get("success"):
+        return ""
+    if "failure" in record:
+        return record["failure"] or UNNAMED_FAILURE
+    if not record["executed"]:
+        return "no_grasp"
+    named = (record.get("outcome") or {}).get("failure", "")
+    if named:
+        return named
+    return "wrong_part" if record.get("lifted") and record.get("touched_on_part") is False else UNNAMED_FAILURE
+
+
+def _rate(values: list, rate) -> float | None:
+    return rate(values) if values else None
+
+
+def grasp_metrics(rows: list[dict]) -> dict:
+    """Per-request Part Sel. and Suc. over all slots, top-1 Suc., the executed-only figures (DESIGN.md section 5),
+    sigma^2 of the executed grasps' orientations per request, and the failure counts."""
+    executed = [r for r in rows if r["executed"]]
+    groups: dict[tuple, list[np.ndarray]] = {}
+    for r in executed:
+        groups.setdefault((r["object_id"], r["prompt"]), []).append(np.array(r["T_world_grasp"])[:3, :3])
+    variances = [quaternion_variance(np.stack(g)) for g in groups.values() if len(g) >= 2]
+    first = [bool(r["success"]) for r in rows if r["rank"] == 0 and r["success"] is not None]
+    failures = Counter(failure_name(r) for r in rows if not r.get("success"))
+    return {
+        "trials": len(rows),
+        "executed": len(executed),
+        "reachable": int(sum(r["reachable"] for r in executed)),
+        "part_selection_all_slots": _rate([bool(r["contacts_on_part"]) for r in rows
+                                           if r["contacts_on_part"] is not None], part_selection_accuracy),
+        "success_all_slots": _rate([bool(r["success"]) for r in rows if r["success"] is not None], success_rate),
+        "success_top1": _rate(first, success_rate),
+        "part_selection": _rate([r["contacts_on_part"] for r in executed if r["contacts_on_part"] is not None],
+                                part_selection_accuracy),
+        "success": _rate([r["success"] for r in executed if r["success"] is not None], success_rate),
+        "sigma2": float(np.mean(variances)) if variances else None,
+        "failures": dict(sorted(failures.items())),
+    }
+
+
+def _summarise_curves(curves: list[dict]) -> dict:
+    """Mean mIoU over objects at every threshold any object used (each object's partition at a threshold t is its
+    partition with the largest threshold <= t, since identical partitions are stored once, at their finest)."""
+    if not curves:
+        return {}
+    grid = sorted({t for c in curves for t in c["thresholds"]})
+    spread, full = [], []
+    for t in grid:
+        s_values, f_values = [], []
+        for c in curves:
+            below = [i for i, ct in enumerate(c["thresholds"]) if ct <= t + 1e-12]
+            if not below:
+                continue
+            index = max(below, key=lambda i: c["thresholds"][i])
+            s_values.append(c["spread"][index])
+            f_values.append(c["full"][index])
+        spread.append(float(np.mean(s_values)) if s_values else None)
+        full.append(float(np.mean(f_values)) if f_values else None)
+    return {"thresholds": grid, "spread": spread, "full": full, "n_objects": len(curves)}
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    return "—" if value is None else f"{value:.{digits}f}"
+
+
+def _table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> list[str]:
+    lines = ["| " + " | ".join(header) + " |", "|---" * len(header) + "|"]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+def _table_one(methods: dict) -> list[str]:
+    categories = sorted({c for m in methods.values() if "miou" in m for c in m["miou"]["categories"]})
+    rows = [[name, *(_fmt(m["miou"]["categories"].get(c)) for c in categories), _fmt(m["miou"]["overall"]),
+             _fmt(m["miou_faces"]["overall"])] for name, m in methods.items() if "miou" in m]
+    return ["## Table I — segmentation mIoU (area-weighted) per category", "",
+            *_table(["method", *categories, "overall", "overall (face count)"], rows)]
+
+
+def _table_two(methods: dict) -> list[str]:
+    rows = []
+    for name, m in methods.items():
+        if "trials" not in m:
+            continue
+        miou = m["miou"]["overall"] if "miou" in m else None
+        rows.append([name, _fmt(miou), _fmt(m["part_selection_all_slots"]), _fmt(m["success_all_slots"]),
+                     _fmt(m["success_top1"]), _fmt(m["part_selection"]), _fmt(m["success"]), _fmt(m["sigma2"], 4),
+                     f"{m['executed']} / {m['trials']}", str(m["reachable"])])
+    return ["## Table II — grasping", "",
+            "Per request first: Part Sel. and Suc. over all top-k slots (a slot without a grasp is a miss) and top-1 "
+            "Suc. (the first slot of every request); then Part Sel., Suc. and σ² over the executed grasps only "
+            "(the paper's definition).", "",
+            *_table(["method", "mIoU", "Part Sel.", "Suc.", "top-1 Suc.", "Part Sel. (executed)", "Suc. (executed)",
+                     "σ² (executed)", "executed / slots", "reachable"], rows)]
+
+
+def _table_three(methods: dict) -> list[str]:
+    ablation = [a for a in ABLATION_METHODS if a in methods]
+    if len(ablation) < 2:
+        return []
+    rows = []
+    for name in ablation:
+        m, recipe = methods[name], RECIPES[name]
+        ticks = ["✓" if step else "" for step in (recipe.multi_fusion, recipe.fine_grained, recipe.anchor,
+                                                     recipe.on_agreement)]
+        miou = m["miou"]["overall"] if "miou" in m else None
+        rows.append([name, *ticks, _fmt(miou), _fmt(m.get("part_selection_all_slots")),
+                     _fmt(m.get("success_all_slots"))])
+    return ["", "## Table III — ablation", "",
+            *_table(["method", "multi-fusion", "fine-grained opt.", "prompt anchoring",
+                     "grasps where labels agree with votes", "mIoU", "Part Sel.", "Suc."], rows)]
+
+
+def _per_category(methods: dict) -> list[str]:
+    categories = sorted({c for m in methods.values() for c in m.get("categories", {})})
+    if not categories:
+        return []
+    rows = [[name, *(f"{_fmt(m['categories'][c]['part_selection_all_slots'], 2)} / "
+                     f"{_fmt(m['categories'][c]['success_all_slots'], 2)}" if c in m["categories"] else "—"
+                     for c in categories)] for name, m in methods.items() if "categories" in m]
+    return ["", "## Part Sel. / Suc. per category (all slots)", "", *_table(["method", *categories], rows)]
+
+
+def _failures(methods: dict) -> list[str]:
+    lines = []
+    for name, m in methods.items():
+        per_category = {c: v["failures"] for c, v in m.get("categories", {}).items()}
+        names = sorted({f for counts in per_category.values() for f in counts})
+        if not names:
+            continue
+        rows = [[c, str(m["categories"][c]["trials"]), *(str(counts.get(f, 0)) for f in names)]
+                for c, counts in per_category.items()]
+        lines += ["", f"### {name}", "", *_table(["category", "slots", *names], rows)]
+    if not lines:
+        return []
+    return ["", "## Failures per category", "",
+            f"Failed slots by failure name (`{UNNAMED_FAILURE}`: the cell named no failure)."] + lines
+
+
+def _curve_table(curve: dict) -> list[str]:
+    if not curve.get("thresholds"):
+        return []
+    rows = [[f"{t:.3f}", _fmt(s), _fmt(f)] for t, s, f in zip(curve["thresholds"], curve["spread"], curve["full"])]
+    return ["", "## GeoSpreading vs GeoFusion over the decomposition threshold (mIoU)", "",
+            *_table(["threshold", "GeoSpreading", "GeoFusion (from this threshold up)"], rows)]
+
+
+def markdown_report(summary: dict, header: dict) -> str:
+    """Tables I-III, per-category results, failures and the threshold curve as Markdown."""
+    methods = summary["methods"]
+    lines = [
+        "# SegGrasp evaluation", "",
+        f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
+        f" · perceive: {header['perceive']} · seed: {header['seed']} · top-k: {header['top_k']}"
+        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s", "",
+    ]
+    lines += _table_one(methods) + [""] + _table_two(methods) + _table_three(methods)
+    lines += _curve_table(summary.get("curve") or {}) + _per_category(methods) + _failures(methods)
+    return "\n".join(lines) + "\n"
+
+
+def expected_trials(config: RunConfig) -> int:
+    """How many trial records a complete run holds."""
+    from seggrasp.objects import load_asset
+
+    total = 0
+    for object_id in config.objects:
+        n_prompts = len(config.prompts) if config.prompts else len(load_asset(object_id).prompts)
+        total += n_prompts * len(config.methods) * config.top_k
+    return total
+
+
+def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[dict]) -> dict:
+    """Read the result files back (first record per key) and write summary.json, summary.md and the plots."""
+    wanted = set(config.objects)
+
+    def of_run(records: list[dict], by_method: bool = True) -> list[dict]:
+        return [r for r in records if r["object_id"] in wanted and (not by_method or r["method"] in config.methods)]
+
+    trials = of_run(read_unique(out / "trials.jsonl", trial_key))
+    segmentations = of_run(read_unique(out / "segmentations.jsonl", segmentation_key))
+    curves = of_run(read_unique(out / "curves.jsonl", curve_key), by_method=False)
+    summary = summarise(trials, segmentations, curves, config.methods)
+    header = {
+        "detector": config.detector_spec().label, "embodiment": config.embodiment, "backend": config.backend,
+        "perceive": config.perceive, "seed": config.seed, "top_k": config.top_k, "n_objects": len(config.objects),
+        "wall_time_s": wall_time,
+    }
+    summary["run"] = dict(header, methods=config.methods, objects=config.objects, expected_trials=expected_trials(config),
+                          recorded_trials=len(trials), crashed_objects=[c["object_id"] for c in crashes])
+    atomic_write_json(out / "summary.json", summary)
+    atomic_write_text(out / "summary.md", markdown_report(summary, header))
+    write_plots(summary, out / "plots")
+    return summary
