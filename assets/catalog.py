@@ -1,4 +1,7 @@
-"""The SegGraspSet twin: 9 categories, 29 objects, each a set of named parts built from solid primitives.
+"""The SegGraspSet twin: 12 categories, 36 objects, each a set of named parts built from solid primitives.
+
+The first nine categories have two or three parts; scissors, kettles and eyeglasses (`assets.multipart`) have
+three or four, some of them thin (a pivot screw, a gooseneck spout, a nose bridge, temples).
 
 A category builder takes a parameter dict (lengths in metres) and returns its parts in prompt order plus "keep
 open" probe points: places (a mug handle's hole, a cup's cavity) that the collision model must leave empty. Every
@@ -14,7 +17,9 @@ from dataclasses import dataclass, field
 import manifold3d as mf
 import numpy as np
 
+from assets.multipart import build_glasses, build_kettle, build_scissors
 from assets.shapes import (
+    Built,
     box,
     cylinder,
     ellipse,
@@ -27,10 +32,6 @@ from assets.shapes import (
     superellipse,
     sweep,
 )
-
-Parts = list[tuple[str, mf.Manifold]]
-Built = tuple[Parts, list[tuple[float, float, float]]]
-
 
 @dataclass(frozen=True)
 class Material:
@@ -61,6 +62,12 @@ MATERIALS = {
         Material("jar_bulk", 450.0, 0.5),
         Material("hdpe_cap", 950.0, 0.6),
         Material("tin_cap", 7850.0, 0.5),
+        # An empty kettle is a 0.6-0.8 mm stainless shell with a thicker base around air (its body is modelled as
+        # a solid); its pressed lid and hollow spout likewise.
+        Material("kettle_bulk", 300.0, 0.45),
+        Material("steel_lid_bulk", 600.0, 0.45),
+        Material("steel_tube_bulk", 2400.0, 0.45),
+        Material("acetate", 1300.0, 0.5),
     )
 }
 
@@ -71,7 +78,7 @@ class ObjectSpec:
 
     object_id: str
     category: str
-    params: dict[str, float | str] = field(default_factory=dict)
+    params: dict[str, float | str | list] = field(default_factory=dict)  # a list: corner points (kettle spout)
     materials: tuple[str, ...] = ()
 
 
@@ -419,6 +426,9 @@ BUILDERS: dict[str, Callable[[dict], Built]] = {
     "frying_pan": build_frying_pan,
     "toothbrush": build_toothbrush,
     "wine_glass": build_wine_glass,
+    "scissors": build_scissors,
+    "kettle": build_kettle,
+    "eyeglasses": build_glasses,
 }
 
 _MUG = dict(radius_bottom=0.04, radius_top=0.04, height=0.095, wall=0.005, floor=0.007, foot_chamfer=0.003,
@@ -443,16 +453,28 @@ _TOOTHBRUSH = dict(handle_length=0.15, handle_width=0.013, handle_thickness=0.00
                    neck_taper=0.45, head_length=0.032, head_width=0.012, plate_thickness=0.005, bristle_height=0.011)
 _GLASS = dict(base_radius=0.035, base_thickness=0.004, stem_radius=0.0038, stem_length=0.075, bowl_radius=0.043,
               bowl_height=0.1, widest=0.45, rim_radius=0.036, wall=0.002, segments=48)
+_SCISSORS = dict(blade_length=0.095, blade_width=0.0105, tip_width=0.0025, blade_thickness=0.0022, edge_overlap=0.0015,
+                 tang=0.014, taper=1.3, handle_thickness=0.008, loop_bar=0.0055, shank_length=0.028, shank_width=0.009,
+                 loop_a_x=0.017, loop_a_y=0.01, loop_b_x=0.011, loop_b_y=0.009, loop_offset=0.017, pivot_radius=0.0035,
+                 head_radius=0.0048, head_height=0.0012)
+_KETTLE = dict(radius=0.08, base_radius=0.074, top_radius=0.045, height=0.12, belly=0.35, lid_dome=0.012,
+               knob_radius=0.011, knob_height=0.016, spout_path=[[-0.03, 0.22], [0.0, 0.38], [0.035, 0.8]],
+               spout_bend=0.02, spout_root=0.013, spout_tip=0.007, handle_style="arch", handle_thickness=0.016,
+               handle_width=0.022, handle_attach=0.78, handle_clearance=0.035, handle_low=0.25, handle_reach=0.03)
+_GLASSES = dict(lens_half_width=0.026, lens_half_height=0.02, rim_width=0.006, front_thickness=0.0045,
+                lens_squareness=3.2, bridge_gap=0.018, top_bar=0.0045, bridge_height=0.05, bridge_arch=0.45,
+                bridge_width=0.0035, hinge_height=0.55, temple_thickness=0.0035, temple_width=0.0055,
+                temple_length=0.14, ear_fraction=0.25, ear_bend=25.0)
 
 
-def _spec(object_id: str, category: str, base: dict, materials: tuple[str, ...], **changes: float | str) -> ObjectSpec:
+def _spec(object_id: str, category: str, base: dict, materials: tuple[str, ...], **changes: object) -> ObjectSpec:
     unknown = set(changes) - set(base)
     if unknown:
         raise ValueError(f"{object_id}: unknown parameters {sorted(unknown)}")
     return ObjectSpec(object_id, category, {**base, **changes}, materials)
 
 
-#: The 29 objects, one category after another; the first of each category is its reference variant.
+#: The 36 objects, one category after another; the first of each category is its reference variant.
 OBJECT_SPECS: tuple[ObjectSpec, ...] = (
     _spec("mug_classic", "mug", _MUG, ("ceramic", "ceramic")),
     _spec("mug_tapered", "mug", _MUG, ("ceramic", "ceramic"), radius_bottom=0.032, radius_top=0.041, height=0.1,
@@ -510,6 +532,25 @@ OBJECT_SPECS: tuple[ObjectSpec, ...] = (
           widest=0.35, rim_radius=0.024, stem_length=0.08, base_radius=0.032),
     _spec("wine_glass_coupe", "wine_glass", _GLASS, ("glass", "glass", "glass"), bowl_radius=0.05, bowl_height=0.045,
           widest=0.9, rim_radius=0.049, stem_length=0.09, base_radius=0.038),
+    _spec("scissors_office", "scissors", _SCISSORS, ("plastic", "steel", "steel")),
+    _spec("scissors_kitchen", "scissors", _SCISSORS, ("plastic", "steel", "steel"), blade_length=0.105,
+          blade_width=0.013, tip_width=0.003, blade_thickness=0.0026, loop_a_x=0.022, loop_a_y=0.012, loop_b_x=0.013,
+          loop_b_y=0.011, loop_bar=0.0065, handle_thickness=0.0095, shank_length=0.03, loop_offset=0.02),
+    _spec("scissors_kids", "scissors", _SCISSORS, ("plastic", "steel", "steel"), blade_length=0.05,
+          blade_width=0.0085, tip_width=0.006, blade_thickness=0.0018, loop_a_x=0.011, loop_a_y=0.009,
+          loop_b_x=0.011, loop_b_y=0.009, handle_thickness=0.0075, shank_length=0.018, loop_offset=0.0145,
+          head_radius=0.0042, pivot_radius=0.003),
+    _spec("kettle_stovetop", "kettle", _KETTLE, ("bakelite", "steel_tube_bulk", "kettle_bulk", "steel_lid_bulk")),
+    _spec("kettle_gooseneck", "kettle", _KETTLE, ("wood", "steel_tube_bulk", "kettle_bulk", "steel_lid_bulk"),
+          radius=0.058, base_radius=0.056, top_radius=0.037, height=0.12, belly=0.55, lid_dome=0.008,
+          knob_radius=0.009, knob_height=0.014, spout_path=[[-0.015, 0.12], [0.02, 0.12], [0.055, 0.92], [0.1, 0.88]],
+          spout_bend=0.035, spout_root=0.0065, spout_tip=0.0035, handle_style="side", handle_thickness=0.014,
+          handle_width=0.02, handle_attach=0.82, handle_low=0.3, handle_reach=0.035),
+    _spec("eyeglasses_acetate", "eyeglasses", _GLASSES, ("acetate", "acetate", "acetate")),
+    _spec("eyeglasses_aviator", "eyeglasses", _GLASSES, ("steel", "steel", "steel"), lens_half_width=0.028,
+          lens_half_height=0.024, rim_width=0.0024, front_thickness=0.0022, lens_squareness=2.3, bridge_gap=0.017,
+          top_bar=0.0022, bridge_height=0.2, bridge_arch=0.3, bridge_width=0.0022, hinge_height=0.45,
+          temple_thickness=0.002, temple_width=0.0028, ear_fraction=0.28, ear_bend=30.0),
 )
 
 CATEGORY_PARTS: dict[str, tuple[str, ...]] = {
@@ -522,6 +563,9 @@ CATEGORY_PARTS: dict[str, tuple[str, ...]] = {
     "frying_pan": ("handle", "pan"),
     "toothbrush": ("handle", "head"),
     "wine_glass": ("stem", "bowl", "base"),
+    "scissors": ("handle", "blade", "pivot"),
+    "kettle": ("handle", "spout", "body", "lid"),
+    "eyeglasses": ("rim", "bridge", "temple"),
 }
 
 

@@ -161,15 +161,22 @@ MULTIPART_SPECS: tuple[ObjectSpec, ...] = (
 
 @contextlib.contextmanager
 def registered() -> Iterator[None]:
-    """`assets.catalog`'s builder and part tables extended by the categories here, for the duration of the block."""
-    added = [c for c in MULTIPART_BUILDERS if c not in BUILDERS]
-    BUILDERS.update({c: MULTIPART_BUILDERS[c] for c in added})
-    CATEGORY_PARTS.update({c: MULTIPART_PARTS[c] for c in added})
+    """`assets.catalog`'s builder and part tables with the categories here, for the duration of the block.
+
+    The twin has its own kettle and eyeglasses (`assets.multipart`, other designs and part names); inside the
+    block these categories' builders stand in for them, and the twin's entries come back afterwards.
+    """
+    saved = {c: (BUILDERS[c], CATEGORY_PARTS[c]) for c in MULTIPART_BUILDERS if c in BUILDERS}
+    BUILDERS.update(MULTIPART_BUILDERS)
+    CATEGORY_PARTS.update(MULTIPART_PARTS)
     try:
         yield
     finally:
-        for category in added:
-            del BUILDERS[category], CATEGORY_PARTS[category]
+        for category in MULTIPART_BUILDERS:
+            if category in saved:
+                BUILDERS[category], CATEGORY_PARTS[category] = saved[category]
+            else:
+                del BUILDERS[category], CATEGORY_PARTS[category]
 
 
 def multipart_meshes(seed: int = 0) -> list:

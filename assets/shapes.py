@@ -12,6 +12,10 @@ from collections.abc import Callable, Sequence
 import manifold3d as mf
 import numpy as np
 
+#: A builder's parts in prompt order, and its result: the parts plus keep-open probe points (see `assets.catalog`).
+Parts = list[tuple[str, mf.Manifold]]
+Built = tuple[Parts, list[tuple[float, float, float]]]
+
 
 def _check(solid: mf.Manifold, what: str) -> mf.Manifold:
     if solid.status() != mf.Error.NoError or solid.is_empty():

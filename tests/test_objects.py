@@ -245,7 +245,7 @@ def test_non_watertight_ycb_mug_becomes_a_physical_object(ycb_dir: Path, tmp_pat
 
 
 def test_coacd_runs_isolated_so_an_abort_becomes_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
-    import seggrasp.objects as objects
+    import seggrasp.object_physics as objects
 
     box = trimesh.creation.box([0.05, 0.04, 0.03])
     vertices, faces = np.asarray(box.vertices, dtype=np.float64), np.asarray(box.faces, dtype=np.int32)
