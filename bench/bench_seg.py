@@ -112,11 +112,12 @@ def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
     return found
 
 
-def multipart_meshes() -> list[LabelledMesh]:
-    """The generated three- and four-part objects of `assets.catalog_multipart` (not yet in the twin)."""
-    from assets.catalog_multipart import multipart_meshes as build
+MULTIPART_CATEGORIES = ("scissors", "kettle", "eyeglasses")
 
-    return [LabelledMesh(g.spec.object_id, g.spec.category, g.mesh, g.labels) for g in build()]
+
+def multipart_meshes() -> list[LabelledMesh]:
+    """The twin's three- and four-part categories with thin parts (scissors, kettle, eyeglasses)."""
+    return [m for m in twin_meshes() if m.category in MULTIPART_CATEGORIES]
 
 
 def ycb_meshes() -> list[LabelledMesh]:
@@ -467,7 +468,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
-                             "seggrasp.datasets), multipart (assets.catalog_multipart), big (a twin object subdivided to each of --big-faces), or "
+                             "seggrasp.datasets), multipart (the twin's scissors, kettles and eyeglasses), big (a twin object subdivided to each of --big-faces), or "
                              "mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
