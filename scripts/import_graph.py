@@ -129,7 +129,7 @@ def draw(graph: nx.DiGraph, out: Path) -> None:
     for column in order:
         ax.text(x_of[column], top, column, ha="center", fontsize=12, weight="bold", color=COLOURS[column])
     ax.set_title("Imports (arrow: imports; dashed: inside a function). Data flows harness -> episode -> method; "
-                 "the cells beside.", fontsize=11)
+                 "the cells beside.", fontsize=11, pad=28)
     ax.axis("off")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
