@@ -28,7 +28,7 @@ from assets.catalog import BUILDERS, CATEGORY_PARTS, MATERIALS, OBJECT_SPECS, Ob
 from seggrasp.io import atomic_write_json, atomic_write_text
 from seggrasp.labels import PartLabels
 from seggrasp.mesh import mesh_hash
-from seggrasp.objects import (
+from seggrasp.object_physics import (
     CollisionConfig,
     MassProperties,
     combine_mass_properties,
