@@ -218,32 +218,8 @@ def load_external_object(
     convex pieces.
     """
     mesh_path = Path(mesh_path)
-    if density <= 0 or not np.isfinite(density):
-        raise ValueError(f"density must be a positive number of kg/m^3, got {density}")
-    if not 0.0 < friction <= 2.0:
-        raise ValueError(f"friction coefficient must be in (0, 2], got {friction}")
-    if mass is not None and not mass > 0:
-        raise ValueError(f"mass must be positive, got {mass}")
-    prepared = load_mesh(mesh_path)
-    largest = float(prepared.mesh.extents.max())
-    if not GRASPABLE_EXTENT_M[0] <= largest <= GRASPABLE_EXTENT_M[1]:
-        raise ValueError(
-            f"{mesh_path}: {largest:.3f} m across; a tabletop object for a parallel gripper must be "
-            f"{GRASPABLE_EXTENT_M[0]}-{GRASPABLE_EXTENT_M[1]} m (check the units of the file)"
-        )
-    thinnest = float(prepared.mesh.extents.min())
-    if thinnest < MIN_THICKNESS_M:
-        raise ValueError(
-            f"{mesh_path}: flat: its thinnest side is {thinnest * 1000:.3g} mm; a surface without thickness has no "
-            f"volume, mass or collision shape (need at least {MIN_THICKNESS_M * 1000:g} mm)"
-        )
-    raw = trimesh.load(mesh_path, force="mesh", process=False, skip_materials=True)
-    lower, upper = prepared.mesh.bounds
-    shift = np.array([-(lower[0] + upper[0]) / 2, -(lower[1] + upper[1]) / 2, -lower[2]])
-    mesh = trimesh.Trimesh(np.asarray(raw.vertices, dtype=np.float64) + shift, np.asarray(raw.faces), process=False)
-    work = prepared.mesh.copy()
-    work.apply_translation(shift)
-
+    _check_physical_inputs(density, friction, mass)
+    mesh, work, shift = _placed_meshes(mesh_path)
     labels = None
     if labels_path is not None:
         file_labels = read_labels(labels_path)
@@ -251,17 +227,7 @@ def load_external_object(
         prompts = list(file_labels.parts) if prompts is None else list(prompts)
         labels = PartLabels(prompts, file_labels.remap_to(prompts))
     prompts = [] if prompts is None else [str(p) for p in prompts]
-
-    notes = []
-    props, how = estimate_mass_properties(work, density)
-    notes.append(f"mass: {how}")
-    if mass is not None:
-        scale = mass / props.mass
-        props = MassProperties(mass, props.center_of_mass, props.inertia * scale)
-        notes.append(f"mass fixed at {mass} kg (effective density {density * scale:.0f} kg/m^3)")
-    if props.mass > GRIPPER_PAYLOAD_KG:
-        log.warning("%s: %.2f kg exceeds the 2F-85 payload of %.1f kg", mesh_path, props.mass, GRIPPER_PAYLOAD_KG)
-        notes.append(f"heavier than the gripper payload ({GRIPPER_PAYLOAD_KG} kg)")
+    props, notes = _external_mass(work, density, mass, mesh_path)
 
     digest = mesh_hash(mesh)
     name = object_id or (mesh_path.parent.name if mesh_path.stem.lower() in _GENERIC_STEMS else mesh_path.stem)
@@ -270,16 +236,7 @@ def load_external_object(
     local_mesh = entry / "mesh.obj"
     if not local_mesh.is_file():
         atomic_write_text(local_mesh, obj_text(mesh.vertices, mesh.faces))
-    collision_path = entry / f"collision-{hashlib.sha256(collision.key().encode()).hexdigest()[:10]}.obj"
-    if collision_path.is_file():
-        hulls = read_collision_hulls(collision_path)
-    else:
-        log.info("running CoACD on %s (%d faces); cached in %s", mesh_path, len(work.faces), collision_path)
-        try:
-            hulls = convex_decomposition(work, collision)
-        except ValueError as exc:
-            raise ValueError(f"{mesh_path}: no collision model: {exc}") from exc
-        write_collision_obj(collision_path, hulls)
+    hulls, collision_path = _cached_collision_hulls(entry, work, collision, mesh_path)
     urdf_path = entry / "object.urdf"
     atomic_write_text(urdf_path, urdf_text(name, local_mesh.name, collision_path.name, props, friction))
     atomic_write_json(entry / "info.json", {
@@ -304,3 +261,70 @@ def load_external_object(
         urdf_path=urdf_path,
         notes=notes,
     )
+
+
+def _check_physical_inputs(density: float, friction: float, mass: float | None) -> None:
+    """ValueError for a density, friction coefficient or mass no physical object has."""
+    if density <= 0 or not np.isfinite(density):
+        raise ValueError(f"density must be a positive number of kg/m^3, got {density}")
+    if not 0.0 < friction <= 2.0:
+        raise ValueError(f"friction coefficient must be in (0, 2], got {friction}")
+    if mass is not None and not mass > 0:
+        raise ValueError(f"mass must be positive, got {mass}")
+
+
+def _placed_meshes(mesh_path: Path) -> tuple[trimesh.Trimesh, trimesh.Trimesh, np.ndarray]:
+    """The file's mesh (face order kept) and its repaired working copy, both moved so the footprint centre is at the
+    origin and the lowest point at z = 0, and that shift; ValueError for an ungraspable size or a flat sheet."""
+    prepared = load_mesh(mesh_path)
+    largest = float(prepared.mesh.extents.max())
+    if not GRASPABLE_EXTENT_M[0] <= largest <= GRASPABLE_EXTENT_M[1]:
+        raise ValueError(
+            f"{mesh_path}: {largest:.3f} m across; a tabletop object for a parallel gripper must be "
+            f"{GRASPABLE_EXTENT_M[0]}-{GRASPABLE_EXTENT_M[1]} m (check the units of the file)"
+        )
+    thinnest = float(prepared.mesh.extents.min())
+    if thinnest < MIN_THICKNESS_M:
+        raise ValueError(
+            f"{mesh_path}: flat: its thinnest side is {thinnest * 1000:.3g} mm; a surface without thickness has no "
+            f"volume, mass or collision shape (need at least {MIN_THICKNESS_M * 1000:g} mm)"
+        )
+    raw = trimesh.load(mesh_path, force="mesh", process=False, skip_materials=True)
+    lower, upper = prepared.mesh.bounds
+    shift = np.array([-(lower[0] + upper[0]) / 2, -(lower[1] + upper[1]) / 2, -lower[2]])
+    mesh = trimesh.Trimesh(np.asarray(raw.vertices, dtype=np.float64) + shift, np.asarray(raw.faces), process=False)
+    work = prepared.mesh.copy()
+    work.apply_translation(shift)
+    return mesh, work, shift
+
+
+def _external_mass(
+    work: trimesh.Trimesh, density: float, mass: float | None, mesh_path: Path
+) -> tuple[MassProperties, list[str]]:
+    """Mass properties at `density` (scaled to `mass` when given) and notes on how they were found."""
+    props, how = estimate_mass_properties(work, density)
+    notes = [f"mass: {how}"]
+    if mass is not None:
+        scale = mass / props.mass
+        props = MassProperties(mass, props.center_of_mass, props.inertia * scale)
+        notes.append(f"mass fixed at {mass} kg (effective density {density * scale:.0f} kg/m^3)")
+    if props.mass > GRIPPER_PAYLOAD_KG:
+        log.warning("%s: %.2f kg exceeds the 2F-85 payload of %.1f kg", mesh_path, props.mass, GRIPPER_PAYLOAD_KG)
+        notes.append(f"heavier than the gripper payload ({GRIPPER_PAYLOAD_KG} kg)")
+    return props, notes
+
+
+def _cached_collision_hulls(
+    entry: Path, work: trimesh.Trimesh, collision: CollisionConfig, mesh_path: Path
+) -> tuple[list[trimesh.Trimesh], Path]:
+    """The CoACD collision hulls of `work`, read from or written to `entry` (keyed by the CoACD settings)."""
+    collision_path = entry / f"collision-{hashlib.sha256(collision.key().encode()).hexdigest()[:10]}.obj"
+    if collision_path.is_file():
+        return read_collision_hulls(collision_path), collision_path
+    log.info("running CoACD on %s (%d faces); cached in %s", mesh_path, len(work.faces), collision_path)
+    try:
+        hulls = convex_decomposition(work, collision)
+    except ValueError as exc:
+        raise ValueError(f"{mesh_path}: no collision model: {exc}") from exc
+    write_collision_obj(collision_path, hulls)
+    return hulls, collision_path
