@@ -37,41 +37,29 @@ COACD_DEFAULTS = dict(
     apx_mode="ch",
     real_metric=False,
 )
-#: Fast mode: coarser CoACD search (chosen by measurement, see bench/bench_seg.py) and no preprocessing. CoACD's
-#: preprocessing remeshes the input on a voxel grid; in "auto" mode it did so on manifold3d's simplified twin knife
-#: (a closed manifold), which moved the finest cut off the blade/handle boundary (majority-label mIoU of the finest
-#: partition 0.966, i.e. one part straddling both) and took 1.4 s at 0.02; with preprocessing off the same run takes
-#: 0.24 s and the partition is exact (1.000), as on the full mesh with CoACD defaults. On the 30k-face knife the
-#: finest partition goes from 0.960 to 0.999 and the sweep from 7.2 s to 2.3 s; the hammer's and mug's partitions
-#: are unchanged. "off" is only used on meshes manifold3d verified as closed manifolds (`simplify`); any other mesh
-#: is decomposed with "auto", since CoACD may abort on non-manifold input. Lighter search settings measured on the mug
-#: (detector seeds 0-19): mcts_iterations 30 or mcts_nodes 10 save a quarter of the CPU time but give full mIoU
-#: 0.466 / 0.470 instead of 0.472; resolution 300 changes nothing.
+#: Fast mode: coarser CoACD search and no CoACD preprocessing. CoACD's preprocessing remeshes the input on a voxel
+#: grid, which on manifold3d's simplified twin knife moved the finest cut off the blade/handle boundary and cost time;
+#: without it the finest partition follows the part boundary. "off" is only used on meshes manifold3d verified as
+#: closed manifolds (`simplify`); any other mesh is decomposed with "auto", since CoACD may abort on non-manifold
+#: input. Lighter search settings saved CPU time at a small mIoU cost. Numbers: docs/results/decomposition.md.
 FAST_COACD = dict(COACD_DEFAULTS, preprocess_mode="off", resolution=500, mcts_nodes=15, mcts_iterations=60,
                   mcts_max_depth=2)
-#: Fast mode's grid: the paper's without 0.01. On the twin's mug 0.01 alone costs 46 s with the fast settings
-#: (248 parts) against 9 s at 0.02 (96 parts), and it buys nothing measurable: on stored partitions of a
-#: --compare run on an earlier twin (4 meshes x detector seeds 0-19) full GeoFusion gives 0.501 with 0.01 and 0.499
-#: without (reference 0.490), and replaying the fast selection on the reference's own partitions 0.4893 with 0.01,
-#: 0.5002 without.
+#: Fast mode's grid: the paper's without 0.01, which is by far the slowest threshold and bought nothing measurable
+#: (docs/results/decomposition.md).
 FAST_THRESHOLDS: tuple[float, ...] = PAPER_THRESHOLDS[1:]
-#: manifold3d simplification tolerance (fraction of the bounding-box diagonal): well below the finest concavity.
-#: Coarser tolerances lower the mug's finest-partition majority-label mIoU (0.999 -> 0.991 at 0.004 and 0.008) and its
-#: full mIoU (0.472 -> 0.469 / 0.463 over detector seeds 0-19).
+#: manifold3d simplification tolerance (fraction of the bounding-box diagonal): well below the finest concavity;
+#: coarser tolerances lowered the mug's mIoU (docs/results/decomposition.md).
 FAST_SIMPLIFY_TOLERANCE = 0.002
 #: Thresholds the fast mode runs before bisecting (indices into the grid are derived from these values).
 FAST_ANCHORS = (0.02, 0.04, 0.08, 0.25)
 #: At most this many CoACD runs per sweep in fast mode (bisection stops there; the finest threshold is always run).
-#: Full GeoFusion hardly depends on the coarser partitions: replaying the selection on the reference sweep's
-#: partitions (4 benchmark meshes x detector seeds 0-19) gave mIoU 0.4907 with 6 runs, 0.4920 with 5, 0.4919 with 4
-#: or with only the two grid ends, against 0.4908 for all 25 thresholds. 5 runs instead of 6 save 17 % of the mug's
-#: CoACD time (19.7 vs 23.7 CPU s) at the same mug mIoU.
+#: Full GeoFusion hardly depends on the coarser partitions (docs/results/decomposition.md).
 FAST_MAX_RUNS = 5
 #: Time budget of one CoACD run (CPU seconds) by mode: a run that exceeds it is killed and the sweep goes on
 #: without it.
 RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
 #: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
-#: (bounded time and memory: one fast-mode run on a 20k-face working mesh took over a minute).
+#: (bounded time and memory; a fast-mode run on a 20k-face working mesh took over a minute).
 MAX_COACD_FACES = 10_000
 
 
