@@ -111,7 +111,8 @@ def _face_areas_in_file_order(prepared: PreparedMesh) -> np.ndarray:
 
 def run_segment(args: argparse.Namespace) -> dict:
     """Run the `segment` command; returns the summary it writes to DIR/summary.json."""
-    from seggrasp.segment import SegmentationConfig, check_prompts, segment
+    from seggrasp.labels import check_prompts
+    from seggrasp.segment import SegmentationConfig, segment
     from seggrasp.viz import save_coloured_mesh, save_contact_sheet, save_label_preview, save_partition_previews
 
     prompts = check_prompts(args.prompts)

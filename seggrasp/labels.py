@@ -26,6 +26,21 @@ def prompt_key(name: str) -> str:
     return name.strip().lower()
 
 
+def check_prompts(prompts: Sequence[str]) -> list[str]:
+    """Stripped prompts; ValueError if there are none, one is empty, or two are the same (case-insensitively)."""
+    if isinstance(prompts, str):
+        raise ValueError(f"prompts must be a list of part names, got the single string {prompts!r}")
+    cleaned = [str(p).strip() for p in prompts]
+    if not cleaned:
+        raise ValueError("give at least one prompt (a part name such as 'handle')")
+    if any(not p for p in cleaned):
+        raise ValueError(f"prompts must not be empty: {list(prompts)}")
+    lowered = [prompt_key(p) for p in cleaned]
+    if len(set(lowered)) != len(lowered):
+        raise ValueError(f"prompts must be distinct: {cleaned}")
+    return cleaned
+
+
 def find_prompt(names: Sequence[str], name: str) -> int | None:
     """Index of `name` among `names` under `prompt_key`, or None when absent."""
     keys = [prompt_key(n) for n in names]

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from seggrasp.detect.base import Detections, Detector
-from seggrasp.labels import prompt_key
+from seggrasp.labels import check_prompts
 from seggrasp.mesh import PreparedMesh
 from seggrasp.render import DEFAULT_IMAGE_SIZE, camera_rig, render_views
 from seggrasp.views import View
@@ -78,21 +78,6 @@ class SegmentationResult:
     anchored: bool = False
     partitions: list[Partition] = field(default_factory=list)
     timings: dict[str, float] = field(default_factory=dict)
-
-
-def check_prompts(prompts: Sequence[str]) -> list[str]:
-    """Stripped prompts; ValueError if there are none, one is empty, or two are the same (case-insensitively)."""
-    if isinstance(prompts, str):
-        raise ValueError(f"prompts must be a list of part names, got the single string {prompts!r}")
-    cleaned = [str(p).strip() for p in prompts]
-    if not cleaned:
-        raise ValueError("give at least one prompt (a part name such as 'handle')")
-    if any(not p for p in cleaned):
-        raise ValueError(f"prompts must not be empty: {list(prompts)}")
-    lowered = [prompt_key(p) for p in cleaned]
-    if len(set(lowered)) != len(lowered):
-        raise ValueError(f"prompts must be distinct: {cleaned}")
-    return cleaned
 
 
 def segment(

@@ -205,11 +205,11 @@ def test_incomplete_weights_folder_is_reported(tiny_weights, tmp_path):
 
 def test_bad_inputs_are_rejected(tiny_weights, views):
     detector = OwlV2(tiny_weights["owlv2"])
-    with pytest.raises(ValueError, match="unique"):
+    with pytest.raises(ValueError, match="distinct"):
         detector.detect(views, ["handle", "Handle"])
     with pytest.raises(ValueError, match="empty"):
         detector.detect(views, ["handle", " "])
-    with pytest.raises(ValueError, match="not one string"):
+    with pytest.raises(ValueError, match="single string"):
         detector.detect(views, "handle")
     grey = View(views[0].rgb[..., 0], views[0].face_ids, views[0].K, views[0].T_world_cam)
     with pytest.raises(ValueError, match="rgb"):

@@ -19,7 +19,8 @@ from seggrasp.detect.simulated import SimulatedDetector
 from seggrasp.labels import PartLabels, read_labels, write_labels
 from seggrasp.mesh import prepare_mesh
 from seggrasp.metrics import shape_miou
-from seggrasp.segment import SegmentationConfig, check_prompts, segment
+from seggrasp.labels import check_prompts
+from seggrasp.segment import SegmentationConfig, segment
 
 PARTS = ["handle", "head"]
 FAST = SegmentationConfig(n_views=6, image_size=128, refine="none")

@@ -10,6 +10,7 @@ from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 
+from seggrasp.labels import check_prompts, prompt_key
 from seggrasp.views import View
 
 T = TypeVar("T")
@@ -109,18 +110,8 @@ def load_detector(
 
 
 def clean_prompts(prompts: Sequence[str]) -> list[str]:
-    """Validate prompts (non-empty strings, unique ignoring case) and return them stripped and lower-cased."""
-    if isinstance(prompts, str):
-        raise ValueError("prompts must be a sequence of strings, not one string")
-    cleaned = [str(p).strip().lower() for p in prompts]
-    if not cleaned:
-        raise ValueError("no prompts given")
-    empty = [i for i, p in enumerate(prompts) if not str(p).strip()]
-    if empty:
-        raise ValueError(f"prompts {empty} are empty")
-    if len(set(cleaned)) != len(cleaned):
-        raise ValueError(f"prompts must be unique ignoring case, got {list(prompts)}")
-    return cleaned
+    """Validate prompts (`seggrasp.labels.check_prompts`) and return them in matching form (`prompt_key`)."""
+    return [prompt_key(p) for p in check_prompts(prompts)]
 
 
 def view_images(views: Sequence[View]) -> list[np.ndarray]:
