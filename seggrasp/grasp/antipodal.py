@@ -63,7 +63,6 @@ class AntipodalConfig:
     pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
-    tip_tolerance: float = 0.0005  # a ledge past the usable pad wider than this on a side carries the squeeze
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
     # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
     # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
@@ -156,7 +155,6 @@ class AntipodalSampler:
             free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
             # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
             free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
-            free[free] = self._tips_clear(shifted[free], widths[todo][free], openings[todo][free], cloud)
             depth_index[todo[free]] = index
         free = depth_index >= 0
         if not free.any():
@@ -207,20 +205,6 @@ class AntipodalSampler:
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
         return widths
-
-    def _tips_clear(self, poses: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray) -> np.ndarray:
-        """True where nothing between the usable pad (the contact depths) and the fingertips is wider than what
-        the usable pad closes on: else the closing pads' ends and tips bear on it (e.g. a wider base under the
-        grasped part, just above the table) and squeeze the object out."""
-        cfg = self.config
-        usable = max(abs(d) for d in cfg.contact_depths) + cfg.footprint_tolerance
-        clear = np.ones(len(poses), dtype=bool)
-        for start in range(0, len(poses), COLLISION_CHUNK):
-            sl = slice(start, start + COLLISION_CHUNK)
-            held = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width, -cfg.pad_half_length, usable)[0]
-            tips = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width, usable, self.gripper.tip_beyond_origin)[0]
-            clear[sl] = tips <= np.maximum(held, widths[sl]) + 2.0 * cfg.tip_tolerance
-        return clear
 
     def _collision_free(
         self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
