@@ -39,9 +39,14 @@ PAD_THICKNESS = 0.00635
 FINGER_JOINT_MAX = 0.8
 #: Datasheet: 85 mm stroke.
 MAX_WIDTH = 0.085
-#: Fingertip friction (silicone-like pads), and a little torsional and rolling friction.
+#: Fingertip friction (silicone-like pads).
 PAD_FRICTION = 1.0
-PAD_SPINNING_FRICTION = 0.002
+#: Torsional friction of the pad's rubber patch, as PyBullet's `spinningFriction` (a length: the torque limit about
+#: the contact normal is this x the object's friction x the normal force). A patch with friction mu and normal
+#: force N resists twist with mu N times its mean contact radius; the narrowest patch a 2F-85 pad makes is a line
+#: across its 22 mm width (a round handle), whose mean radius is 22 mm / 4 = 5.5 mm (a flat face under the whole
+#: pad gives more). PyBullet's point contacts alone hold almost no twist.
+PAD_SPINNING_FRICTION = 0.0055
 PAD_ROLLING_FRICTION = 0.0001
 
 

@@ -202,7 +202,8 @@ class UR5Arm:
         self._track(path, steps_for, on_step)
 
     def _track(self, path: list[np.ndarray], steps_for, on_step=None) -> None:
-        """Interpolate joint targets every physics step towards each waypoint, in `steps_for(q_next - q)` steps."""
+        """Interpolate joint targets every physics step towards each waypoint, in `steps_for(q_next - q)` steps;
+        the move ends at rest on its last waypoint (as a UR5 move does), not still commanding its last velocity."""
         dt = self.world.physics.time_step
         q = self.q_commanded.copy()
         for q_next in path:
@@ -214,6 +215,7 @@ class UR5Arm:
                     on_step()
                 self.world.step()
             q = q_next
+        self._command(q, np.zeros(6))
 
     def hold(self, steps: int, on_step=None) -> None:
         self._command(self.q_commanded, np.zeros(6))

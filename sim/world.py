@@ -49,11 +49,15 @@ class PhysicsSettings:
     time_step: float = 1.0 / 240.0
     solver_iterations: int = 100
     contact_erp: float | None = 0.8
+    # an object lighter than this is squeezed by contact impulses far above its momentum: it creeps out of the
+    # fingers at 100 iterations (a 20 g toothbrush falls during the lift) and needs `light_object_iterations`
+    light_object_mass: float = 0.05
+    light_object_iterations: int | None = 300
     gravity: float = -9.81
 
 
 #: The solver settings the twin used before the gripper converged (for side-by-side benchmarks).
-LEGACY_PHYSICS = PhysicsSettings(solver_iterations=50, contact_erp=None)
+LEGACY_PHYSICS = PhysicsSettings(solver_iterations=50, contact_erp=None, light_object_iterations=None)
 
 
 def pose_to_pb(T: np.ndarray) -> tuple[list[float], list[float]]:
@@ -159,7 +163,8 @@ class World:
         )
 
     def load_object(self, model: ObjectModel, T_world_obj: np.ndarray) -> int:
-        """Load an object's one-link URDF so that its mesh frame sits at `T_world_obj`; set its friction."""
+        """Load an object's one-link URDF so that its mesh frame sits at `T_world_obj`; set its friction (and the
+        solver iterations a light object needs, `PhysicsSettings`)."""
         if model.urdf_path is None or not Path(model.urdf_path).is_file():
             raise ValueError(f"object {model.object_id!r} has no URDF file (urdf_path={model.urdf_path})")
         position, orientation = pose_to_pb(T_world_obj)
@@ -169,6 +174,9 @@ class World:
         self.client.changeDynamics(
             body, -1, lateralFriction=float(model.friction), spinningFriction=0.001, rollingFriction=0.0001,
         )
+        light = self.physics.light_object_iterations is not None and model.mass < self.physics.light_object_mass
+        iterations = self.physics.light_object_iterations if light else self.physics.solver_iterations
+        self.client.setPhysicsEngineParameter(numSolverIterations=int(iterations))
         return body
 
     def body_pose(self, body: int) -> np.ndarray:

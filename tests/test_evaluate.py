@@ -151,6 +151,42 @@ def test_votes_are_keyed_by_the_prompts_and_resume_refuses_other_prompts(small_r
     assert _segmentations(out)["coarse"]["miou"] == pytest.approx(_segmentations(clean)["coarse"]["miou"])
 
 
+def test_record_writes_picture_strips_and_leaves_the_records_unchanged(small_run, tmp_path) -> None:
+    """Issue 12: `--record 1` saves a strip of the first executed slot per method and object; the trials match a
+    run without recording."""
+    from PIL import Image
+
+    from sim.recording import FRAME_SIZE
+
+    out = tmp_path / "recorded"
+    assert main([*IN_PROCESS, "--record", "1", "--out", str(out)]) == 0
+    strips = sorted((out / "strips").glob("*.png"))
+    ran_the_cell = [r for r in _trials(out) if r["executed"] and not r["reused_outcome"]]
+    first = {}  # the first slot per method that ran the cell (the file is in execution order)
+    for record in ran_the_cell:
+        first.setdefault(record["method"], f"{record['method']}-mug_classic-{record['prompt']}-{record['rank']}.png")
+    expected = set(first.values())
+    assert {p.name for p in strips} == expected and strips
+    for path in strips:
+        width, height = Image.open(path).size
+        assert width % FRAME_SIZE[0] == 0 and height > FRAME_SIZE[1]  # stage frames side by side, captioned
+    plain = {(r["method"], r["prompt"], r["rank"]): r for r in _trials(small_run)}
+    for record in _trials(out):
+        reference = plain[(record["method"], record["prompt"], record["rank"])]
+        for key in ("executed", "success", "failure", "lifted", "T_world_grasp"):
+            assert record[key] == reference[key], key
+        assert record["lift_height"] == pytest.approx(reference["lift_height"], abs=1e-6)
+
+
+def test_record_is_refused_without_the_twin(capsys) -> None:
+    real = ["--backend", "real", "--config", "cell.yaml", "--detector", "owlv2", "--weights", "w",
+            "--objects", "thing", "--prompts", "handle"]
+    assert main([*real, "--record", "1"]) == 2
+    assert "--record needs the twin" in capsys.readouterr().err
+    assert main([*IN_PROCESS, "--record", "-1"]) == 2
+    assert "--record must be at least 0" in capsys.readouterr().err
+
+
 def test_a_second_run_on_the_folder_is_refused_and_duplicates_count_once(small_run, tmp_path, capsys) -> None:
     """Issue 13 finding 2: the folder is locked while a run writes it; duplicated records are ignored."""
     out = _copy(small_run, tmp_path)

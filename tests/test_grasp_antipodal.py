@@ -120,13 +120,13 @@ def test_ring_grasps_do_not_close_across_the_hole() -> None:
 
 
 def _hammer() -> tuple[trimesh.Trimesh, np.ndarray, float]:
-    """A hammer lying on the table: a light 25 mm handle (0.1 kg) along x and a heavy steel head (0.6 kg) at +x."""
+    """A hammer lying on the table: a light 25 mm handle (0.1 kg) along x and a heavy steel head (1 kg) at +x."""
     handle = trimesh.creation.box((0.26, 0.025, 0.025))
     handle.apply_translation([0.0, 0.0, 0.0125])
     head = trimesh.creation.box((0.03, 0.10, 0.03))
     head.apply_translation([0.145, 0.0, 0.015])
-    com = (0.1 * handle.center_mass + 0.6 * head.center_mass) / 0.7
-    return trimesh.util.concatenate([handle, head]), com, 0.7
+    com = (0.1 * handle.center_mass + 1.0 * head.center_mass) / 1.1
+    return trimesh.util.concatenate([handle, head]), com, 1.1
 
 
 def test_hammer_grasp_holds_against_the_heavy_head() -> None:

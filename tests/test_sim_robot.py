@@ -77,3 +77,22 @@ def test_closed_form_ik_recovers_random_configurations(arm):
             np.testing.assert_allclose(dh_forward(solution), dh_forward(q), atol=1e-9)
         wrapped = [np.abs((s - q + np.pi) % (2 * np.pi) - np.pi).max() for s in solutions]
         assert min(wrapped) < 1e-6  # the configuration we started from is one of the branches
+
+
+def test_a_straight_move_ends_at_rest_on_its_target(arm):
+    """Issue 12: after the approach the arm stays on the planned pose while the gripper closes (it used to keep
+    commanding the approach velocity and sank 3 mm past it, pushing the fingertips towards the table)."""
+    arm.reset_home(MAX_WIDTH)
+    T_target = arm.fk(HOME_Q)
+    T_target[:3, 3] = [0.5, 0.0, 0.15]
+    T_target[:3, :3] = np.diag([1.0, -1.0, -1.0])  # pointing down
+    T_pre = T_target.copy()
+    T_pre[2, 3] += 0.10
+    candidates, reason = arm.plan([T_pre, T_target])
+    assert candidates, reason
+    paths = candidates[0]
+    arm.place(paths[0][0])
+    arm.follow(paths[1], 0.25)  # the cell's approach speed
+    arm.world.step(120)  # as long as closing the gripper takes
+    position_error, _ = pose_error(arm.world.link_pose(arm.body, arm.gripper_base_link), T_target)
+    assert position_error < 0.001

@@ -64,11 +64,12 @@ class AntipodalConfig:
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
-    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius (0.1 N m at 40 N:
-    # issue 12 measured on the twin that grasps above it mostly turn or drop, below it mostly hold)
+    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
+    # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
+    # twin's pads, sim/gripper.py PAD_SPINNING_FRICTION)
     default_mass: float = 0.3
     grip_force: float = DEFAULT_GRIP_FORCE
-    torsion_radius: float = 0.0025
+    torsion_radius: float = 0.0055
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
@@ -194,22 +195,12 @@ class AntipodalSampler:
         cfg = self.config
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
-            rotations = poses[sl, :3, :3]
-            local = np.matmul(cloud[None], rotations) - np.matmul(poses[sl, None, :3, 3], rotations)  # (G, M, 3)
-            inside = (
-                (np.abs(local[..., 1]) <= cfg.pad_half_width) & (np.abs(local[..., 2]) <= cfg.pad_half_length)
-                & (np.abs(local[..., 0]) <= 0.5 * openings[sl, None])
-            )
-            x = local[..., 0]
-            low = np.where(inside, x, np.inf).argmin(axis=1)
-            high = np.where(inside, x, -np.inf).argmax(axis=1)
-            rows = np.arange(len(local))
-            span = np.where(inside.any(axis=1), x[rows, high] - x[rows, low], 0.0)
+            span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
+                                                    -cfg.pad_half_length, cfg.pad_half_length)
             wider = span > widths[sl] + 2.0 * cfg.footprint_tolerance
             index = np.flatnonzero(wider) + start
             if len(index):
-                centre = 0.5 * (x[wider, high[wider]] + x[wider, low[wider]])
-                poses[index, :3, 3] += centre[:, None] * poses[index, :3, 0]
+                poses[index, :3, 3] += 0.5 * (x_high[wider] + x_low[wider])[:, None] * poses[index, :3, 0]
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
@@ -265,6 +256,26 @@ def _box_corners(boxes: np.ndarray) -> np.ndarray:
     """The 8 corners of each box (B, 2, 3) [min, max] -> (B * 8, 3)."""
     pick = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
     return np.stack([boxes[:, pick[:, 0], 0], boxes[:, pick[:, 1], 1], boxes[:, pick[:, 2], 2]], axis=-1).reshape(-1, 3)
+
+
+def _sweep(
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cloud points the closing pads sweep (|y| <= half_width, z_low <= z <= z_high, |x| within half the
+    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices)."""
+    rotations = poses[:, :3, :3]
+    local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
+    inside = (
+        (np.abs(local[..., 1]) <= half_width) & (local[..., 2] >= z_low) & (local[..., 2] <= z_high)
+        & (np.abs(local[..., 0]) <= 0.5 * openings[:, None])
+    )
+    x = local[..., 0]
+    low = np.where(inside, x, np.inf).argmin(axis=1)
+    high = np.where(inside, x, -np.inf).argmax(axis=1)
+    rows = np.arange(len(local))
+    x_low, x_high = x[rows, low], x[rows, high]
+    span = np.where(inside.any(axis=1), x_high - x_low, 0.0)
+    return span, x_low, x_high, low, high
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:

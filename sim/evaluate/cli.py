@@ -52,6 +52,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--dry-run", action="store_true", help="real backend: plan and check, never move the robot")
     parser.add_argument("--perceive", action="store_true", help="plan on a mesh fused from the cameras, not the twin's")
     parser.add_argument("--prompts", help="comma-separated part names (default: each object's own; required for real)")
+    parser.add_argument("--record", type=int, default=0, metavar="N",
+                        help="twin only: save a picture strip (pre-grasp, closed, lifted, held) of the first N executed "
+                        "slots per method and object to OUT/strips/")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     args.embodiment_given = any(a == "--embodiment" or a.startswith("--embodiment=") for a in (argv or sys.argv[1:]))
@@ -72,6 +75,10 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
         raise ValueError(f"--detector {args.detector} needs --weights (a local weights directory or hub id)")
     if args.workers < 1:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    if args.record < 0:
+        raise ValueError(f"--record must be at least 0, got {args.record}")
+    if args.record and args.backend == "real":
+        raise ValueError("--record needs the twin: the real cell cannot record picture strips (drop --record)")
 
 
 def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]) -> None:
@@ -103,7 +110,7 @@ def build_config(args: argparse.Namespace) -> RunConfig:
         methods=methods, objects=objects, detector=args.detector, weights=args.weights, embodiment=embodiment,
         seed=args.seed, top_k=top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
-        prompts=prompts,
+        prompts=prompts, record=args.record,
     )
 
 

@@ -35,6 +35,7 @@ class RunConfig:
     dry_run: bool = False
     quick: bool = False
     prompts: list[str] = field(default_factory=list)
+    record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
 
     def detector_spec(self) -> DetectorSpec:
         """The run's detector (seeded with the run seed)."""

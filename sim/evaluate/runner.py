@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from seggrasp.cell import Cell, GraspOutcome
-from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, TrialRecord, grasp_key
+from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, TrialRecord, grasp_key
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.evaluate.config import RunConfig, scene_seed_of
@@ -106,20 +106,41 @@ def run_object(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
         vote_cache=VoteCache(out / "cache" / context.object_id), outcome_cache=_reusable_outcomes(existing, config),
     )
+    if config.record and not hasattr(cell, "record_next"):
+        raise ValueError(f"--record needs a cell that records picture strips; {type(cell).__name__} does not")
     n_new = 0
     for method in config.methods:
         plan = episode.plan(method)
         if episode.truth_on_mesh is not None and (context.object_id, method) not in seg_done:
             seg_file.append(segmentation_record(context, plan.method, plan.detector, plan.labels, episode))
+        recorded = 0
         for slot in episode.slots(plan):
-            if (context.object_id, method, context.prompts[slot.prompt_index], slot.rank) in done:
+            prompt = context.prompts[slot.prompt_index]
+            if (context.object_id, method, prompt, slot.rank) in done:
                 continue
+            if recorded < config.record and _runs_the_cell(episode, slot):
+                cell.record_next(strip_path(out, method, context.object_id, prompt, slot.rank))
+                recorded += 1
             record = episode.execute(slot)
             record_extra(record, config)
             trials_file.append(record.to_json())
             n_new += 1
     _append_curve(episode, config, out)
     return n_new
+
+
+def _runs_the_cell(episode: Episode, slot: Slot) -> bool:
+    """Whether executing `slot` moves the cell: it has a grasp whose outcome is not reused from the cache."""
+    if slot.grasp is None:
+        return False
+    key = grasp_key(slot.grasp.poses[0], float(slot.grasp.widths[0]))
+    return episode.outcome_cache is None or key not in episode.outcome_cache
+
+
+def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int) -> Path:
+    """Where `--record` writes the picture strip of one slot: OUT/strips/<method>-<object>-<prompt>-<rank>.png."""
+    safe_prompt = "".join(c if c.isalnum() or c in "_." else "_" for c in prompt)
+    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}.png"
 
 
 def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
