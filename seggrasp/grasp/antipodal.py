@@ -121,41 +121,18 @@ class AntipodalSampler:
         face_normals = normals_sign * np.asarray(mesh.face_normals)
 
         com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
-        points, faces = _surface_samples(mesh, cfg, com, rng)
-        normals = face_normals[faces]
-        p, q, n_p, n_q = _opposite_contacts(mesh, points, normals, face_normals)
-        width = np.linalg.norm(q - p, axis=1)
-        ok = (width >= cfg.min_width) & (width <= self.gripper.max_opening - cfg.width_margin)
-        axis = np.zeros_like(p)
-        axis[ok] = (q[ok] - p[ok]) / width[ok, None]
-        half_angle = float(np.arctan(cfg.friction_coefficient))
-        angle_p = np.arccos(np.clip(np.einsum("ij,ij->i", axis, -n_p), -1.0, 1.0))
-        angle_q = np.arccos(np.clip(np.einsum("ij,ij->i", axis, n_q), -1.0, 1.0))
-        ok &= (angle_p <= half_angle) & (angle_q <= half_angle)
-        if not ok.any():
+        pairs = self._friction_cone_pairs(mesh, face_normals, com, rng)
+        if pairs is None:
             LOG.info("antipodal sampler: no contact pair inside the friction cone")
             return GraspSet.empty()
-        p, q, axis, width = p[ok], q[ok], axis[ok], width[ok]
-        antipodality = 1.0 - np.maximum(angle_p[ok], angle_q[ok]) / half_angle
+        p, q, axis, width, antipodality = pairs
 
         axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
         cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
-        # each pose first with the contacts at the pad centres, then pulled back so they sit nearer the fingertips
-        depth_index = np.full(len(axis_poses), -1)
-        for index, depth in enumerate(cfg.contact_depths):
-            todo = np.flatnonzero(depth_index < 0)
-            shifted = axis_poses[todo].copy()
-            shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
-            free = np.ones(len(todo), dtype=bool)
-            if plane is not None:
-                free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
-            free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
-            # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
-            free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
-            depth_index[todo[free]] = index
+        depth_index = self._deepest_free_depths(axis_poses, openings, widths, plane, cloud)
         free = depth_index >= 0
         if not free.any():
             LOG.info("antipodal sampler: every candidate pose collides")
@@ -170,21 +147,71 @@ class AntipodalSampler:
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
             return GraspSet.empty()
+        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass)
+        grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
+        if cfg.max_grasps is not None:
+            grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
+        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(axis_poses), len(grasps))
+        return grasps
 
+    def _friction_cone_pairs(
+        self, mesh: trimesh.Trimesh, face_normals: np.ndarray, com: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Contact pairs (p, q, closing axis, width, antipodality in [0, 1]) that fit the stroke and lie inside both
+        friction cones; None when there is none."""
+        cfg = self.config
+        points, faces = _surface_samples(mesh, cfg, com, rng)
+        p, q, n_p, n_q = _opposite_contacts(mesh, points, face_normals[faces], face_normals)
+        width = np.linalg.norm(q - p, axis=1)
+        ok = (width >= cfg.min_width) & (width <= self.gripper.max_opening - cfg.width_margin)
+        axis = np.zeros_like(p)
+        axis[ok] = (q[ok] - p[ok]) / width[ok, None]
+        half_angle = float(np.arctan(cfg.friction_coefficient))
+        angle_p = np.arccos(np.clip(np.einsum("ij,ij->i", axis, -n_p), -1.0, 1.0))
+        angle_q = np.arccos(np.clip(np.einsum("ij,ij->i", axis, n_q), -1.0, 1.0))
+        ok &= (angle_p <= half_angle) & (angle_q <= half_angle)
+        if not ok.any():
+            return None
+        antipodality = 1.0 - np.maximum(angle_p[ok], angle_q[ok]) / half_angle
+        return p[ok], q[ok], axis[ok], width[ok], antipodality
+
+    def _deepest_free_depths(
+        self, poses: np.ndarray, openings: np.ndarray, widths: np.ndarray, plane: np.ndarray | None, cloud: np.ndarray
+    ) -> np.ndarray:
+        """Per pose, the index of the first contact depth (`config.contact_depths`, deepest first) at which the open
+        gripper clears the table and the object and the fingers behind the pads clear it when closed; -1 if none."""
+        cfg = self.config
+        depth_index = np.full(len(poses), -1)
+        for index, depth in enumerate(cfg.contact_depths):
+            todo = np.flatnonzero(depth_index < 0)
+            shifted = poses[todo].copy()
+            shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
+            free = np.ones(len(todo), dtype=bool)
+            if plane is not None:
+                free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
+            free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
+            # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
+            free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
+            depth_index[todo[free]] = index
+        return depth_index
+
+    def _score(
+        self, mesh: trimesh.Trimesh, poses: np.ndarray, com: np.ndarray, antipodality: np.ndarray,
+        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None,
+    ) -> np.ndarray:
+        """Grasp score: antipodality, closeness to the centre of mass, shallow contact depth, a top-down approach, and
+        a gravity torque the pads can hold (grasps whose torque exceeds the limit rank after all others)."""
+        cfg = self.config
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
         closeness = 1.0 - np.clip(np.linalg.norm(poses[:, :3, 3] - com, axis=1) / radius, 0.0, 1.0)
-        score = cfg.weight_antipodality * antipodality[pair_index] + cfg.weight_center_of_mass * closeness
+        score = cfg.weight_antipodality * antipodality + cfg.weight_center_of_mass * closeness
         score -= cfg.weight_contact_depth * np.abs(contact_depth) / max(np.abs(cfg.contact_depths).max(), 1e-9)
         if plane is not None:
             score += cfg.weight_top_down * np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
             torque = gravity_torque(poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
             score -= cfg.weight_torque * np.minimum(torque / cfg.torsion_limit, 1.0)
             score -= 2.0 * (torque > cfg.torsion_limit)  # ranks after every grasp whose torque the pads hold
-        grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
-        if cfg.max_grasps is not None:
-            grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
-        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(axis_poses), len(grasps))
-        return grasps
+        return score
 
     def _apply_footprint(
         self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray
