@@ -99,7 +99,8 @@ def primitive_meshes() -> list[LabelledMesh]:
 def twin_meshes(twin_dir: Path | None = None) -> list[LabelledMesh]:
     """The twin's objects (`seggrasp.objects.load_asset_set()`), or <id>/mesh.obj + labels.json under `twin_dir`
     (a frozen copy, so that a long comparison keeps its meshes while the twin is regenerated)."""
-    from seggrasp.objects import load_asset_set, read_obj_arrays
+    from seggrasp.object_physics import read_obj_arrays
+    from seggrasp.objects import load_asset_set
 
     if twin_dir is None:
         return [LabelledMesh(m.object_id, m.category, m.mesh, m.labels) for m in load_asset_set() if m.labels]

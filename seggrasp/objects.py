@@ -16,13 +16,11 @@ import trimesh
 from seggrasp.io import atomic_write_json, atomic_write_text
 from seggrasp.labels import PartLabels, read_labels
 from seggrasp.mesh import load_mesh, mesh_hash
-from seggrasp.object_physics import (  # noqa: F401  (re-exported: the physical models' public names)
+from seggrasp.object_physics import (
     CollisionConfig,
     MassProperties,
-    combine_mass_properties,
     convex_decomposition,
     mass_properties,
-    obj_group_names,
     obj_text,
     read_collision_hulls,
     read_obj_arrays,

@@ -28,7 +28,8 @@ from assets.generate import (
     round_to_scale,
 )
 from seggrasp.mesh import mesh_hash
-from seggrasp.objects import ObjectModel, asset_ids, load_asset_set, read_obj_arrays
+from seggrasp.object_physics import read_obj_arrays
+from seggrasp.objects import ObjectModel, asset_ids, load_asset_set
 
 MANIFEST = json.loads((ASSETS_DIR / "manifest.json").read_text())
 RECORDS = {r["id"]: r for r in MANIFEST["objects"]}

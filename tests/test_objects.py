@@ -13,21 +13,23 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from seggrasp.labels import PartLabels, write_labels
-from seggrasp.objects import (
+from seggrasp.object_physics import (
     CollisionConfig,
     MassProperties,
-    ObjectModel,
-    asset_ids,
     combine_mass_properties,
-    estimate_mass_properties,
-    load_asset,
-    load_asset_set,
-    load_external_object,
     mass_properties,
     obj_text,
     read_collision_hulls,
     urdf_text,
     write_collision_obj,
+)
+from seggrasp.objects import (
+    ObjectModel,
+    asset_ids,
+    estimate_mass_properties,
+    load_asset,
+    load_asset_set,
+    load_external_object,
 )
 
 #: Coarse CoACD settings for tests: a few hulls, quickly.
