@@ -271,12 +271,11 @@ class Episode:
 
     def coarse_scores(self) -> np.ndarray:
         """The coarse votes on the planning mesh (computed once; stored in the vote cache when there is one)."""
-        segmenter = self.segmenter
-        if not segmenter.has_coarse_scores:
-            scores = segmenter.coarse_scores()
-            if self.vote_cache is not None:
-                self.vote_cache.save(self.votes_key(), scores)
-        return segmenter.coarse_scores()
+        computed_now = not self.segmenter.has_coarse_scores
+        scores = self.segmenter.coarse_scores()
+        if computed_now and self.vote_cache is not None:
+            self.vote_cache.save(self.votes_key(), scores)
+        return scores
 
     def plan(self, method: str) -> PartPlan:
         """`method`'s labels on the planning mesh (`oracle`: the ground truth's)."""
@@ -293,14 +292,11 @@ class Episode:
         if self._grasps is None:
             o = self.observation
             plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
-            if isinstance(self.generator, AntipodalSampler) and not o.perceived:
-                # the twin's own mesh: the sampler's gravity-torque term gets the true centre of mass and mass;
-                # on a perceived mesh it estimates them at uniform density, as the real cell does
-                self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane,
-                                                       center_of_mass=self.context.center_of_mass,
-                                                       mass=self.context.mass)
-            else:
-                self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane)
+            # the context's centre of mass is in the twin's object frame; a perceived mesh lives in the world, so
+            # there the generator estimates it (the antipodal sampler: uniform density, as on the real cell)
+            com, mass = (None, None) if o.perceived else (self.context.center_of_mass, self.context.mass)
+            self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane,
+                                                   center_of_mass=com, mass=mass)
         return self._grasps
 
     def target_indices(self, targets: Sequence[str] | None) -> list[int]:

@@ -77,9 +77,17 @@ class LearnedGraspGenerator:
         if name is not None:
             self.name = name
 
-    def generate(self, mesh: trimesh.Trimesh, seed: int = 0, table_plane: np.ndarray | None = None) -> GraspSet:
+    def generate(
+        self,
+        mesh: trimesh.Trimesh,
+        seed: int = 0,
+        table_plane: np.ndarray | None = None,
+        center_of_mass: np.ndarray | None = None,
+        mass: float | None = None,
+    ) -> GraspSet:
         """Predicted grasps in the mesh frame, best first; those wider than the stroke or whose origin lies below
-        `table_plane` (a, b, c, d; normal up) are dropped."""
+        `table_plane` (a, b, c, d; normal up) are dropped. The model sees geometry only: `center_of_mass` and `mass`
+        are accepted for the `GraspGenerator` protocol and not used."""
         points, _ = trimesh.sample.sample_surface(mesh, self.n_points, seed=seed)
         return self.from_points(np.asarray(points), seed=seed, table_plane=table_plane)
 

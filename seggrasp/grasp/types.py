@@ -119,5 +119,13 @@ class GraspGenerator(Protocol):
 
     name: str
 
-    def generate(self, mesh: trimesh.Trimesh, seed: int = 0, table_plane: np.ndarray | None = None) -> GraspSet:
-        """Grasps sorted best first."""
+    def generate(
+        self,
+        mesh: trimesh.Trimesh,
+        seed: int = 0,
+        table_plane: np.ndarray | None = None,
+        center_of_mass: np.ndarray | None = None,
+        mass: float | None = None,
+    ) -> GraspSet:
+        """Grasps sorted best first. `center_of_mass` (mesh frame) and `mass` (kg), when the caller knows them, let a
+        generator prefer grasps whose gravity torque the fingers can hold; None means unknown."""
