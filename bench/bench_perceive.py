@@ -14,12 +14,10 @@ mIoU(reconstructed) / mIoU(true) >= 90%, reported per object and as the ratio of
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402

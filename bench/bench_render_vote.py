@@ -7,10 +7,7 @@ Target (issue 2): under 1 s for render + vote on a 2-core machine.
 from __future__ import annotations
 
 import argparse
-import os
 import time
-
-os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
 
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
-import os
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -215,7 +214,6 @@ def threshold_curve(episode: Episode) -> dict:
 
 
 def _worker_init() -> None:
-    os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     try:
         import torch
 
