@@ -25,15 +25,12 @@ from hardware.realsense import RealSenseCamera
 from hardware.robotiq import RobotiqGripper
 from hardware.safety import SafetyGuard
 from hardware.ur import URArm
-from seggrasp.cell import Frame, GraspOutcome
+from seggrasp.cell import MAX_SLIP, Frame, GraspOutcome
 
 log = logging.getLogger(__name__)
 
 #: The object is put back this far above where it was grasped, so a slipped object is not pushed into the table.
 PLACE_CLEARANCE = 0.01
-#: Largest change of the finger gap (m) between closing and the end of the hold for a held grasp (the twin's
-#: `GraspSettings.max_slip`).
-MAX_SLIP = 0.010
 #: A reset retracts straight up first when the gripper is more than this below its home height.
 RETRACT_TOLERANCE = 0.02
 #: The perception box reaches this far below the table top, so the table plane can be measured.

@@ -32,6 +32,13 @@ class Frame:
 GRIP_FORCE_RANGE = (20.0, 235.0)
 DEFAULT_GRIP_FORCE = 100.0
 
+# Success as a lab judges it, the same on both backends: the grasped point rises at least LIFT_SUCCESS (m; the
+# lift is 20 cm) and the object moves less than MAX_SLIP (m) and MAX_ROTATION_DEG in the fingers from the close to
+# the end of the hold.
+LIFT_SUCCESS = 0.18
+MAX_SLIP = 0.010
+MAX_ROTATION_DEG = 15.0
+
 # Why a trial failed. The cell names the physical failures; the harness adds `no_grasp` (the method planned no
 # grasp for the slot) and `wrong_part` (held, but on another part than the prompted one). "" means success.
 FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp")

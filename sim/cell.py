@@ -30,7 +30,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from seggrasp.cell import Frame, GraspOutcome
+from seggrasp.cell import LIFT_SUCCESS, MAX_ROTATION_DEG, MAX_SLIP, Frame, GraspOutcome
 from seggrasp.objects import ObjectModel
 from seggrasp.perception import Workspace
 from seggrasp.views import look_at
@@ -64,9 +64,9 @@ class GraspSettings:
     lift_height: float = 0.20
     lift_speed: float = 0.10
     hold_time: float = 1.0
-    lift_success: float = 0.18  # the grasped point must rise this much
-    max_slip: float = 0.010  # the grasped point may move this much relative to the gripper from close to hold
-    max_rotation_deg: float = 15.0  # and the object turn this much
+    lift_success: float = LIFT_SUCCESS  # the grasped point must rise this much
+    max_slip: float = MAX_SLIP  # the grasped point may move this much relative to the gripper from close to hold
+    max_rotation_deg: float = MAX_ROTATION_DEG  # and the object turn this much
     table_clearance: float = 0.003
     settle_time: float = 1.0  # at most; settling stops once the object rests
 
