@@ -286,18 +286,40 @@ def test_fast_mode_simplifies_caps_the_runs_and_uses_its_coacd_settings(monkeypa
     assert len({c[3] for c in calls}) == len(calls)  # every run in its own process
 
 
-def test_fast_mode_keeps_coacd_preprocessing_for_a_mesh_that_is_not_a_closed_manifold(monkeypatch, tmp_path):
+def test_fast_mode_decomposes_an_open_mesh_through_a_closed_shell_without_coacd_preprocessing(monkeypatch, tmp_path):
     closed = l_shape().subdivide()
     opened = trimesh.Trimesh(closed.vertices, closed.faces[1:], process=False)  # one face missing: not closed
     log = tmp_path / "calls.jsonl"
-    monkeypatch.setattr(workers, "run_coacd_hulls", recording_coacd(log, [np.asarray(closed.bounding_box.vertices)]))
+    monkeypatch.setattr(workers, "run_coacd_hulls", _bounding_box_coacd(log))
     config = DecompositionConfig(thresholds=(0.05,))
     assert config.coacd_params()["preprocess_mode"] == "off"
     decompose_sweep(closed, config, cache_dir=tmp_path / "closed", workers=1)
-    decompose_sweep(opened, config, cache_dir=tmp_path / "open", workers=1)
-    (on_closed, on_open) = logged_calls(log)
+    (partition,) = decompose_sweep(opened, config, cache_dir=tmp_path / "open", workers=1)
+    decompose_sweep(opened, DecompositionConfig(mode="reference", thresholds=(0.05,)), cache_dir=tmp_path / "ref",
+                    workers=1)
+    (on_closed, on_open, on_open_reference) = logged_calls(log)
     assert on_closed[1]["preprocess_mode"] == "off" and on_closed[2] < len(closed.faces)
-    assert on_open[1] == dict(config.coacd_params(), preprocess_mode="auto") and on_open[2] == len(opened.faces)
+    # Fast mode: CoACD gets a closed shell around the open mesh, so it needs no preprocessing of its own.
+    assert on_open[1] == config.coacd_params() and on_open[2] != len(opened.faces)
+    assert partition.part_of_face.shape == (len(opened.faces),)
+    # The reference mode stays literal: the open mesh itself, CoACD's preprocessing on.
+    assert on_open_reference[1]["preprocess_mode"] == "auto" and on_open_reference[2] == len(opened.faces)
+    # The open mesh's runs are keyed as a scan's; the closed mesh keeps the key of the bundled twin caches.
+    assert (tmp_path / "closed" / f"{config.run_key(decompose.mesh_hash(closed), 0.05)}.npz").is_file()
+    assert (tmp_path / "open" / f"{config.run_key(decompose.mesh_hash(opened), 0.05, scan=True)}.npz").is_file()
+
+
+def test_closed_shell_encloses_every_face_of_an_open_mesh():
+    from seggrasp.decompose.remesh import closed_shell
+
+    tube = trimesh.creation.cylinder(radius=0.04, height=0.1, sections=32).subdivide()
+    tube = trimesh.Trimesh(tube.vertices, tube.faces[np.abs(tube.face_normals[:, 2]) < 0.5])  # caps removed: open
+    assert not workers.is_closed_manifold(tube.vertices, tube.faces)
+    vertices, faces = closed_shell(tube.vertices, tube.faces, resolution=32)
+    shell = trimesh.Trimesh(vertices, faces)
+    assert workers.is_closed_manifold(vertices, faces) and shell.volume > 0
+    assert shell.contains(tube.triangles_center).all()
+    assert shell.volume < 0.5 * trimesh.creation.cylinder(radius=0.04, height=0.1).volume  # a shell, not filled
 
 
 def test_bundled_twin_caches_make_the_sweep_warm(monkeypatch, tmp_path, twin_knife):
@@ -427,8 +449,9 @@ def test_coacd_never_sees_more_than_the_face_limit_and_every_face_is_mapped(monk
     (partition,) = decompose_sweep(mesh, config, cache_dir=tmp_path, workers=1)
     ((threshold, params, n_faces, _),) = logged_calls(log)
     assert 250 <= n_faces <= 500 < len(mesh.faces)
-    # CoACD skips its preprocessing only when manifold3d verified the decimated mesh as closed.
-    assert params["preprocess_mode"] == ("off" if closed else "auto")
+    # The open mesh is replaced by a closed shell first: manifold3d verifies both decimated meshes as closed, so CoACD
+    # skips its preprocessing on both.
+    assert params["preprocess_mode"] == "off"
     assert partition.part_of_face.shape == (len(mesh.faces),)
 
 
@@ -450,5 +473,49 @@ def test_the_face_limit_is_in_the_cache_key_only_of_meshes_above_it(monkeypatch,
     assert (tmp_path / "small" / f"{config.run_key(decompose.mesh_hash(mesh), 0.05)}.npz").is_file()
     monkeypatch.setattr(decompose.sweep, "MAX_COACD_FACES", len(mesh.faces) - 1)
     decompose_sweep(mesh, config, cache_dir=tmp_path / "big", workers=1)
-    key = config.run_key(decompose.mesh_hash(mesh), 0.05, face_limit=len(mesh.faces) - 1)
+    key = config.run_key(decompose.mesh_hash(mesh), 0.05, face_limit=len(mesh.faces) - 1, scan=True)
     assert [p.name for p in (tmp_path / "big").glob("*.npz")] == [f"{key}.npz"]
+
+
+def test_part_cap_runs_coarse_first_and_nothing_finer_than_a_crowded_partition():
+    grid = decompose.FAST_THRESHOLDS
+    batches = []
+
+    def evaluate(thresholds):  # finer thresholds give more parts: 0.04 -> 50, 0.02 -> 100
+        batches.append(list(thresholds))
+        return {t: canonical_parts(np.arange(400) % int(round(2 / t))) for t in thresholds}
+
+    capped = select_thresholds(grid, evaluate, max_runs=5, max_parts=40)
+    assert 0.02 not in [t for batch in batches for t in batch]
+    assert min(capped) == 0.04 and len(capped) <= 5
+    assert 0.02 not in batches[0]  # the finest waits for the coarse runs
+    batches.clear()
+    uncapped = select_thresholds(grid, evaluate, max_runs=5)
+    assert 0.02 in uncapped and 0.02 in batches[0]
+    batches.clear()
+    assert 0.02 in select_thresholds(grid, evaluate, max_runs=5, max_parts=200)  # under the cap: run, one round later
+    assert 0.02 not in batches[0] and 0.02 in batches[1]
+
+
+def test_only_scans_get_the_part_cap(monkeypatch, tmp_path):
+    closed = l_shape().subdivide()
+    opened = trimesh.Trimesh(closed.vertices, closed.faces[1:], process=False)
+    log = tmp_path / "calls.jsonl"
+
+    def many_hulls(vertices, faces, threshold, params):  # one hull per group of faces: 8 parts at 0.02, 1 at 0.25
+        with open(log, "a") as handle:
+            handle.write(json.dumps([threshold]) + "\n")
+        centres = trimesh.Trimesh(vertices, faces).triangles_center
+        groups = np.array_split(np.argsort(centres[:, 0]), max(1, int(round(0.16 / threshold))))
+        return [trimesh.Trimesh(vertices, faces).bounding_box.vertices] if len(groups) == 1 else [
+            trimesh.PointCloud(centres[g]).bounding_box.vertices for g in groups]
+
+    monkeypatch.setattr(workers, "run_coacd_hulls", many_hulls)
+    config = DecompositionConfig(scan_max_parts=3)
+    decompose_sweep(closed, config, cache_dir=tmp_path / "closed", workers=1)
+    assert 0.02 in {c[0] for c in logged_calls(log)}
+    log.unlink()
+    decompose_sweep(opened, config, cache_dir=tmp_path / "open", workers=1)
+    assert 0.02 not in {c[0] for c in logged_calls(log)}
+    with pytest.raises(ValueError, match="scan_max_parts"):
+        DecompositionConfig(scan_max_parts=0)

@@ -61,6 +61,13 @@ RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
 #: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
 #: (bounded time and memory; a fast-mode run on a 20k-face working mesh took over a minute).
 MAX_COACD_FACES = 10_000
+#: Fast mode on a scan (a mesh over MAX_COACD_FACES, or one that is not a closed manifold): the thresholds run from
+#: coarse to fine, and none finer than one whose partition already has this many parts is run (on the YCB mug the
+#: 0.02 run, 317 parts, cost more CPU time than the four others together; docs/results/cold-segmentation.md).
+SCAN_MAX_PARTS = 100
+#: Bump when the working mesh of a scan changes (closed shell, part cap): old cache entries of scans then no longer
+#: match. Twin-like meshes (closed, at most MAX_COACD_FACES faces) keep their keys.
+SCAN_RECIPE = 1
 
 
 @dataclass(frozen=True)
@@ -71,7 +78,7 @@ class DecompositionConfig:
     `coacd` overrides individual CoACD keyword arguments (keys as in `coacd.run_coacd`), on top of the mode's.
     `simplify_tolerance` simplifies the mesh before CoACD within that fraction of its diagonal (0 = never).
     `adaptive` runs only the thresholds needed to find every distinct partition of the grid (see the package
-    docstring). `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
+    docstring). `scan_max_parts` caps the finest partition of a scan (None: SCAN_MAX_PARTS in fast mode). `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
     """
 
     mode: str = "fast"
@@ -83,6 +90,7 @@ class DecompositionConfig:
     max_runs: int | None = None
     log_level: str = "error"
     run_timeout: float | None = None
+    scan_max_parts: int | None = None
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -112,6 +120,8 @@ class DecompositionConfig:
                 raise ValueError(f"CoACD parameter {key} must be >= 1, got {params[key]}")
         if self.max_runs is not None and self.max_runs < 2:
             raise ValueError(f"max_runs must be at least 2 (the two ends of the grid), got {self.max_runs}")
+        if self.scan_max_parts is not None and self.scan_max_parts < 1:
+            raise ValueError(f"scan_max_parts must be at least 1, got {self.scan_max_parts}")
         if self.run_timeout is not None and not self.run_timeout > 0:
             raise ValueError(f"run_timeout must be a positive number of seconds, got {self.run_timeout}")
         if not (0.0 <= self.effective_simplify_tolerance < 0.1):
@@ -141,12 +151,20 @@ class DecompositionConfig:
         return FAST_MAX_RUNS if self.mode == "fast" else None
 
     @property
+    def effective_scan_max_parts(self) -> int | None:
+        """The part cap of scans (None: no cap; the reference mode has none)."""
+        if self.scan_max_parts is not None:
+            return int(self.scan_max_parts)
+        return SCAN_MAX_PARTS if self.mode == "fast" else None
+
+    @property
     def effective_adaptive(self) -> bool:
         return self.mode == "fast" if self.adaptive is None else bool(self.adaptive)
 
-    def run_key(self, mesh_digest: str, threshold: float, face_limit: int | None = None) -> str:
+    def run_key(self, mesh_digest: str, threshold: float, face_limit: int | None = None, scan: bool = False) -> str:
         """Cache key of one CoACD run at `threshold` on a mesh with geometry hash `mesh_digest`; `face_limit` is the
-        CoACD face limit when the mesh has more faces than it (it then shapes the working mesh)."""
+        CoACD face limit when the mesh has more faces than it (it then shapes the working mesh); `scan`: the mesh is
+        decomposed as a scan (SCAN_RECIPE enters the key)."""
         payload = {
             "mesh": mesh_digest,
             "threshold": round(float(threshold), 6),
@@ -157,4 +175,6 @@ class DecompositionConfig:
         }
         if face_limit is not None:
             payload["face_limit"] = int(face_limit)
+        if scan:
+            payload["scan_recipe"] = SCAN_RECIPE
         return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]

@@ -17,6 +17,7 @@ from seggrasp.decompose import workers as runner
 from seggrasp.decompose.cache import default_cache_dir, load_cached, save_cached
 from seggrasp.decompose.config import ASSET_CACHE_DIR, FAST_ANCHORS, MAX_COACD_FACES, DecompositionConfig
 from seggrasp.decompose.mapping import Partition, dedupe_partitions
+from seggrasp.decompose.remesh import closed_shell
 from seggrasp.mesh import mesh_hash
 
 logger = logging.getLogger(__name__)
@@ -42,6 +43,7 @@ def select_thresholds(
     evaluate: Callable[[list[float]], dict[float, np.ndarray]],
     anchors: Sequence[float] = FAST_ANCHORS,
     max_runs: int | None = None,
+    max_parts: int | None = None,
 ) -> dict[float, np.ndarray]:
     """Find every distinct partition of `grid` while running few thresholds.
 
@@ -50,7 +52,9 @@ def select_thresholds(
     grid values nearest to `anchors` are evaluated; then, in rounds, the grid value nearest the midpoint of every
     interval between consecutive evaluated thresholds whose partitions differ. An interval whose two ends agree is
     assumed constant. With `max_runs`, the widest differing intervals are split first and the search stops after
-    that many evaluations. Returns the evaluated {threshold: partition}.
+    that many evaluations. With `max_parts`, the finest grid value waits for the first batch, and no threshold below
+    one whose partition has `max_parts` parts or more is run (finer partitions only have more parts). Returns the
+    evaluated {threshold: partition}.
     """
     grid = sorted(float(t) for t in grid)
     chosen = {0, len(grid) - 1}
@@ -62,14 +66,23 @@ def select_thresholds(
     batch = sorted(chosen)
     if len(batch) > budget:  # keep the two ends and the anchors nearest the fine end
         batch = sorted([0, len(grid) - 1] + [i for i in batch if i not in (0, len(grid) - 1)][: budget - 2])
+    deferred = batch[:1] if max_parts is not None and len(batch) > 1 else []
+    batch = batch[len(deferred):]
+    floor = 0  # no grid index below this one is run
     while batch:
         found = evaluate([grid[i] for i in batch])
         tried.update(batch)
         results.update({i: found[grid[i]] for i in batch if grid[i] in found})
-        done = sorted(results)
+        crowded = [i for i, parts in results.items() if max_parts is not None and parts.max() + 1 >= max_parts]
+        if crowded and max(crowded) > floor:
+            floor = max(crowded)
+            logger.info("decomposition: %d parts at threshold %.2f (cap %d): no finer threshold is run",
+                        results[floor].max() + 1, grid[floor], max_parts)
+        done = sorted(i for i in results if i >= floor)
         splits = sorted((low - high, low, high) for low, high in zip(done, done[1:])
                         if high - low > 1 and not np.array_equal(results[low], results[high]))
-        batch = []
+        batch = [i for i in deferred if i >= floor and i not in tried]
+        deferred = []
         for _, low, high in splits:
             untried = [i for i in range(low + 1, high) if i not in tried]
             if untried and len(tried) + len(batch) < budget:
@@ -94,6 +107,11 @@ class _Sweep:
         self.params = config.coacd_params()
         self.face_limit = MAX_COACD_FACES if self.n_faces > MAX_COACD_FACES else None
         self.working: tuple[np.ndarray, np.ndarray, bool] | None = None
+        # A scan: over the face limit, or (checked only when it is small, where it is cheap) not a closed manifold.
+        # The reference mode decomposes every mesh literally.
+        self.scan = config.mode == "fast" and (self.face_limit is not None or not runner.is_closed_manifold(
+            np.asarray(mesh.vertices), np.asarray(mesh.faces)))
+        self.max_parts = config.effective_scan_max_parts if self.scan else None
 
     def evaluate(self, thresholds: list[float]) -> dict[float, np.ndarray]:
         """{threshold: part_of_face} from the cache or from CoACD; thresholds whose run timed out are left out."""
@@ -118,15 +136,21 @@ class _Sweep:
         return found
 
     def _key(self, threshold: float) -> str:
-        return self.config.run_key(self.digest, threshold, self.face_limit)
+        return self.config.run_key(self.digest, threshold, self.face_limit, self.scan)
 
     def _working_mesh(self) -> tuple[np.ndarray, np.ndarray, bool]:
         """CoACD's input: the simplified mesh (coarser when over MAX_COACD_FACES), decimated to MAX_COACD_FACES when
-        still larger; whether manifold3d verified it as a closed manifold (then CoACD skips its preprocessing)."""
+        still larger; a scan that is not a closed manifold is first replaced by a closed shell around it
+        (`seggrasp.decompose.remesh`). Also whether manifold3d verified it as a closed manifold (then CoACD skips its
+        preprocessing)."""
         if self.working is None:
             started = time.perf_counter()
-            vertices, faces, closed = runner.simplify(self.mesh, self.config.effective_simplify_tolerance,
-                                                      MAX_COACD_FACES)
+            tolerance = self.config.effective_simplify_tolerance
+            vertices, faces, closed = runner.simplify(self.mesh, tolerance, MAX_COACD_FACES)
+            if self.scan and not closed and (tolerance > 0 or not runner.is_closed_manifold(self.mesh.vertices,
+                                                                                              self.mesh.faces)):
+                shell = trimesh.Trimesh(*closed_shell(self.mesh.vertices, self.mesh.faces), process=False)
+                vertices, faces, closed = runner.simplify(shell, tolerance, MAX_COACD_FACES)
             if len(faces) > MAX_COACD_FACES:
                 vertices, faces, closed = runner.limit_faces(vertices, faces, MAX_COACD_FACES)
             self.working = (vertices, faces, closed)
@@ -185,7 +209,8 @@ def decompose_sweep(
     sweep = _Sweep(mesh, config, writable, bundled, workers, stats)
     started = time.perf_counter()
     if config.effective_adaptive:
-        evaluated = select_thresholds(config.thresholds, sweep.evaluate, max_runs=config.effective_max_runs)
+        evaluated = select_thresholds(config.thresholds, sweep.evaluate, max_runs=config.effective_max_runs,
+                                      max_parts=sweep.max_parts)
     else:
         evaluated = sweep.evaluate(list(config.thresholds))
     if not evaluated:
