@@ -149,6 +149,23 @@ def subdivided(item: LabelledMesh, n_faces: int) -> LabelledMesh:
                         PartLabels(item.labels.parts, labels))
 
 
+def perceived(item: LabelledMesh, noise: float = 0.001, n_points: int = 30_000, seed: int = 0) -> LabelledMesh:
+    """A mesh like the robot's depth fusion makes: `n_points` points sampled on `item`'s surface with Gaussian noise
+    of `noise` metres, reconstructed by `seggrasp.perception.reconstruct_mesh` (normals from the source faces); each
+    face takes the label of the nearest source face."""
+    from scipy.spatial import cKDTree
+
+    from seggrasp.perception import reconstruct_mesh
+
+    rng = np.random.default_rng(seed)
+    points, faces = trimesh.sample.sample_surface(item.mesh, n_points, seed=seed)
+    points = points + rng.normal(0.0, noise, points.shape)
+    mesh = reconstruct_mesh(points, item.mesh.face_normals[faces])
+    _, nearest = cKDTree(item.mesh.triangles_center).query(mesh.triangles_center)
+    return LabelledMesh(f"{item.name}_perceived", item.category, mesh,
+                        PartLabels(item.labels.parts, item.labels.face_labels[nearest]))
+
+
 # ----------------------------------------------------------------------------------------------- the stages
 
 
@@ -172,14 +189,16 @@ def _sweep_child(conn, mesh, config, cache_dir, workers) -> None:
     started = time.perf_counter()
     partitions = decompose_sweep(mesh, config, cache_dir=cache_dir, workers=workers, stats=stats, bundled=False)
     elapsed = time.perf_counter() - started
-    peak_kb = max(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss,
-                  resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)
-    conn.send(([(p.threshold, p.part_of_face) for p in partitions], stats, elapsed, peak_kb / 1024.0))
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    peak_kb = max(own.ru_maxrss, children.ru_maxrss)
+    cpu = own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+    conn.send(([(p.threshold, p.part_of_face) for p in partitions], stats, elapsed, peak_kb / 1024.0, cpu))
     conn.close()
 
 
 def sweep_in_child(mesh, config, cache_dir, workers):
-    """decompose_sweep in a forked child: (partitions, stats, seconds, peak RSS in MB)."""
+    """decompose_sweep in a forked child: (partitions, stats, seconds, peak RSS in MB, CPU seconds of the child and
+    its CoACD workers)."""
     from seggrasp.decompose import Partition
 
     context = multiprocessing.get_context("fork")
@@ -191,8 +210,8 @@ def sweep_in_child(mesh, config, cache_dir, workers):
     child.join()
     if child.exitcode != 0:
         raise RuntimeError(f"decomposition child failed with exit code {child.exitcode}")
-    partitions, stats, elapsed, peak_mb = result
-    return [Partition(t, p) for t, p in partitions], stats, elapsed, peak_mb
+    partitions, stats, elapsed, peak_mb, cpu = result
+    return [Partition(t, p) for t, p in partitions], stats, elapsed, peak_mb, cpu
 
 
 def evaluate_modes(item: LabelledMesh, scores: np.ndarray, partitions, normalisation: str) -> dict:
@@ -228,7 +247,7 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
             config = DecompositionConfig(mode=mode, seed=args.seed,
                                          thresholds=tuple(t for t in PAPER_THRESHOLDS if t >= args.fast_from - 1e-9))
         with tempfile.TemporaryDirectory(prefix="seggrasp-bench-") as cache:
-            partitions, stats, decompose_s, peak_mb = sweep_in_child(item.mesh, config, cache, args.workers)
+            partitions, stats, decompose_s, peak_mb, decompose_cpu = sweep_in_child(item.mesh, config, cache, args.workers)
             warm = None
             if args.warm:
                 started = time.perf_counter()
@@ -252,6 +271,8 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
             "mesh": item.name, "category": item.category, "faces": int(len(item.mesh.faces)), "mode": mode,
             "mesh_hash": mesh_hash(item.mesh),
             "preset": args.preset, "seed": args.seed, "detector_seeds": seeds, "times": times, "peak_rss_mb": peak_mb,
+            "decompose_cpu_s": decompose_cpu,
+            "bench_peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             "coacd_seconds": {f"{t:.2f}": s for t, s in sorted(stats.run_seconds.items())},
             "thresholds_run": sorted(stats.evaluated), "distinct_partitions": [p.threshold for p in partitions],
             "parts_per_partition": [p.n_parts for p in partitions],
@@ -303,6 +324,31 @@ def print_table(records: list[dict], modes: list[str]) -> None:
                       f"{diffs.size} mesh x detector-seed pairs)")
         print(f"TOTAL over {len(common)} meshes: speed-up decomposition {dec:.1f}x, whole segmentation {tot:.1f}x "
               f"(detector excluded); mean mIoU(full) {modes[0]} - {modes[1]} = {100 * gap:+.2f} points{spread}")
+
+
+def cold_report(records: list[dict], command: str) -> str:
+    """Markdown table of cold runs: times (detector excluded), CPU seconds and peak memory of the decomposition,
+    partitions and mIoU per mesh and mode; paired fast - reference differences where both modes ran."""
+    lines = ["| mesh | faces | mode | render s | decomposition s (CPU s) | total s | peak MB (sweep / bench) | runs | "
+             "parts (finest) | seeds | coarse mIoU | full mIoU |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in records:
+        t = r["times"]
+        cpu = f" ({r['decompose_cpu_s']:.1f})" if "decompose_cpu_s" in r else ""
+        bench_mb = f" / {r['bench_peak_rss_mb']:.0f}" if "bench_peak_rss_mb" in r else ""
+        lines.append(f"| {r['mesh']} | {r['faces']} | {r['mode']} | {t['render']:.1f} | {t['decompose']:.1f}{cpu} | "
+                     f"{t['total_without_detector']:.1f} | {r['peak_rss_mb']:.0f}{bench_mb} | {len(r['coacd_seconds'])} | "
+                     f"{r['parts_per_partition'][0]} | {len(r['detector_seeds'])} | {r['miou']['none']:.3f} | "
+                     f"{r['miou']['full']:.3f} |")
+    fast = {r["mesh"]: r for r in records if r["mode"] == "fast"}
+    ref = {r["mesh"]: r for r in records if r["mode"] == "reference"}
+    common = sorted(set(fast) & set(ref))
+    if common:
+        diffs = np.concatenate([np.subtract(fast[n]["miou_per_seed"]["full"], ref[n]["miou_per_seed"]["full"])
+                                for n in common])
+        se = diffs.std(ddof=1) / np.sqrt(diffs.size) if diffs.size > 1 else float("nan")
+        lines += ["", f"Full GeoFusion mIoU, fast - reference, on {', '.join(common)}: {100 * diffs.mean():+.2f} points "
+                  f"(paired standard error {100 * se:.2f} points over {diffs.size} mesh x detector-seed pairs)."]
+    return "\n".join(lines + ["", f"Measured by `{command}`."]) + "\n"
 
 
 def normalisation_study(items: list[LabelledMesh], args) -> None:
@@ -463,11 +509,13 @@ def main(argv: list[str] | None = None) -> int:
                         help="mIoU of every method, mean over categories, over --seeds detector/camera seeds, with "
                              "paired standard errors against coarse and the paper's GeoFusion")
     parser.add_argument("--results", type=Path, help="with --quality: also write the report (markdown) here")
+    parser.add_argument("--cold-results", type=Path, help="write the table of the cold runs (markdown) here")
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
-                             "seggrasp.datasets), multipart (the twin's scissors, kettles and eyeglasses), big (a twin object subdivided to each of --big-faces), or "
+                             "seggrasp.datasets), multipart (the twin's scissors, kettles and eyeglasses), big (a twin object subdivided to each of --big-faces), "
+                             "perceived (--perceived-from sampled with 1 mm noise and reconstructed by seggrasp.perception), or "
                              "mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
@@ -475,6 +523,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--image-size", type=int, default=512)
     parser.add_argument("--workers", type=int, default=None)
     parser.add_argument("--big-from", default="knife_chef", help="twin object to subdivide for --meshes big")
+    parser.add_argument("--perceived-from", default="mug_classic", help="twin object for --meshes perceived")
     parser.add_argument("--big-faces", default="30000",
                         help="face counts of the --meshes big meshes, comma list (e.g. 30000,300000)")
     parser.add_argument("--twin-dir", type=Path, help="read twin objects from <dir>/<id>/{mesh.obj,labels.json}")
@@ -486,12 +535,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="run only this mode now (the table also shows the other mode's records with --resume)")
     args = parser.parse_args(argv)
     args.argv = argv
+    if args.results is not None and not args.quality:
+        parser.error("--results needs --quality")
     if args.seeds is None:
         args.seeds = 5 if args.quality else 3
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
-    if args.results is not None and not args.quality:
-        parser.error("--results needs --quality")
     if args.normalisation is None:
         from seggrasp.fusion import SHIPPED_NORMALISATION
 
@@ -499,7 +548,7 @@ def main(argv: list[str] | None = None) -> int:
 
     wanted = [w.strip() for w in args.meshes.split(",") if w.strip()]
     items: list[LabelledMesh] = []
-    twin = twin_meshes(args.twin_dir) if ({"twin", "big"} & set(wanted)) or any("_" in w for w in wanted) else []
+    twin = twin_meshes(args.twin_dir) if ({"twin", "big", "perceived"} & set(wanted)) or any("_" in w for w in wanted) else []
     if "twin" in wanted:
         items += twin
     if "primitives" in wanted:
@@ -511,6 +560,11 @@ def main(argv: list[str] | None = None) -> int:
             items += ycb_meshes()
         except FileNotFoundError as exc:
             parser.error(str(exc))
+    if "perceived" in wanted:
+        source = next((t for t in twin if t.name == args.perceived_from), None)
+        if source is None:
+            parser.error(f"--perceived-from {args.perceived_from!r} is not among the twin's objects")
+        items.append(perceived(source))
     if "big" in wanted:
         if not twin:
             parser.error("--meshes big needs the twin's objects")
@@ -518,7 +572,7 @@ def main(argv: list[str] | None = None) -> int:
         if source is None:
             parser.error(f"--big-from {args.big_from!r} is not among the twin's objects {[t.name for t in twin]}")
         items += [subdivided(source, int(n)) for n in args.big_faces.split(",")]
-    named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big")]
+    named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big", "perceived")]
     pool = {i.name: i for i in twin + primitive_meshes()}
     for name in named:
         if name not in pool:
@@ -555,6 +609,10 @@ def main(argv: list[str] | None = None) -> int:
                   f"mIoU coarse {record['miou']['none']:.3f} full {record['miou']['full']:.3f}", flush=True)
     print_table(records, modes)
     print(f"\nrecords: {args.out}")
+    if args.cold_results is not None:
+        atomic_write_text(args.cold_results, cold_report(records, "python bench/bench_seg.py " + " ".join(
+            sys.argv[1:] if argv is None else argv)))
+        print(f"written: {args.cold_results}")
     return 0
 
 

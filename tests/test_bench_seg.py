@@ -22,10 +22,11 @@ def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkey
         pytest.skip("assets/decompositions/ lacks knife_chef's fast sweep")
     monkeypatch.setattr(workers, "run_coacd_hulls",
                         lambda vertices, faces, threshold, params: [np.asarray(model.mesh.bounding_box.vertices)])
-    partitions, stats, seconds, peak_mb = bench_seg.sweep_in_child(model.mesh, DecompositionConfig(), tmp_path, 1)
+    partitions, stats, seconds, peak_mb, cpu = bench_seg.sweep_in_child(model.mesh, DecompositionConfig(), tmp_path,
+                                                                        1)
     assert stats.cached == [] and {0.02, 0.25} <= set(stats.run_seconds)
     assert len(partitions) == 1 and partitions[0].part_of_face.shape == (len(model.mesh.faces),)
-    assert seconds > 0 and peak_mb > 0
+    assert seconds > 0 and peak_mb > 0 and cpu > 0
 
 
 def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofusion():
@@ -56,3 +57,31 @@ def test_ycb_set_without_the_scans_is_a_clear_error(monkeypatch, tmp_path, capsy
     with pytest.raises(SystemExit):
         bench_seg.main(["--meshes", "ycb", "--quality"])
     assert "YCB scans not found" in capsys.readouterr().err
+
+
+def test_perceived_mesh_is_a_closed_reconstruction_labelled_from_the_source(twin_knife):
+    item = bench_seg.LabelledMesh(twin_knife.object_id, twin_knife.category, twin_knife.mesh, twin_knife.labels)
+    seen = bench_seg.perceived(item, n_points=8000)
+    assert seen.mesh.is_watertight and len(seen.mesh.faces) != len(item.mesh.faces)
+    assert seen.labels.face_labels.shape == (len(seen.mesh.faces),)
+    assert set(np.unique(seen.labels.face_labels)) == set(range(len(item.labels.parts)))
+    handle = item.labels.parts.index("handle")  # labels follow the geometry: the handle stays on its side
+    offset = {name: m.triangles_center[lab.face_labels == handle, 0].mean() - m.triangles_center[:, 0].mean()
+              for name, m, lab in (("source", item.mesh, item.labels), ("seen", seen.mesh, seen.labels))}
+    assert np.sign(offset["source"]) == np.sign(offset["seen"]) != 0
+
+
+def test_cold_report_lists_every_run_and_the_paired_fast_reference_gap():
+    def record(mesh, mode, full):
+        return {"mesh": mesh, "faces": 100, "mode": mode, "times": {"render": 0.5, "decompose": 2.0,
+                "total_without_detector": 3.0}, "peak_rss_mb": 300.0, "decompose_cpu_s": 3.5,
+                "coacd_seconds": {"0.02": 1.0}, "parts_per_partition": [7], "detector_seeds": [0, 1],
+                "miou": {"none": 0.4, "full": float(np.mean(full))}, "miou_per_seed": {"full": full}}
+
+    records = [record("a", "fast", [0.5, 0.7]), record("a", "reference", [0.4, 0.4]), record("b", "fast", [0.5, 0.5])]
+    report = bench_seg.cold_report(records, "python bench/bench_seg.py --x")
+    assert "| a | 100 | fast | 0.5 | 2.0 (3.5) | 3.0 | 300 | 1 | 7 | 2 | 0.400 | 0.600 |" in report
+    assert "| b | 100 | fast |" in report
+    # differences 0.1 and 0.3: mean +20 points, standard error 10 points; only mesh a has both modes
+    assert "on a: +20.00 points (paired standard error 10.00 points over 2 mesh x detector-seed pairs)" in report
+    assert report.rstrip().endswith("Measured by `python bench/bench_seg.py --x`.")
