@@ -519,3 +519,16 @@ def test_only_scans_get_the_part_cap(monkeypatch, tmp_path):
     assert 0.02 not in {c[0] for c in logged_calls(log)}
     with pytest.raises(ValueError, match="scan_max_parts"):
         DecompositionConfig(scan_max_parts=0)
+
+
+def test_more_simplification_passes_leave_fewer_faces_of_a_dense_curved_mesh():
+    import manifold3d
+
+    torus = trimesh.creation.torus(0.05, 0.015, major_sections=48, minor_sections=16)
+    refined = manifold3d.Manifold(manifold3d.Mesh64(np.array(torus.vertices), np.array(torus.faces, dtype=np.uint64)))
+    refined = refined.refine_to_length(0.002).to_mesh64()
+    dense = trimesh.Trimesh(np.asarray(refined.vert_properties[:, :3]), np.asarray(refined.tri_verts, np.int64))
+    _, once, closed_once = workers.simplify(dense, 0.002)
+    vertices, thrice, closed = workers.simplify(dense, 0.002, passes=3)
+    assert closed_once and closed and workers.is_closed_manifold(vertices, thrice)
+    assert len(thrice) < 0.8 * len(once) < len(dense.faces)

@@ -65,6 +65,8 @@ MAX_COACD_FACES = 10_000
 #: coarse to fine, and none finer than one whose partition already has this many parts is run (on the YCB mug the
 #: 0.02 run, 317 parts, cost more CPU time than the four others together; docs/results/cold-segmentation.md).
 SCAN_MAX_PARTS = 100
+#: manifold3d simplification passes of a scan's working mesh (`seggrasp.decompose.workers.simplify`).
+SCAN_SIMPLIFY_PASSES = 3
 #: Bump when the working mesh of a scan changes (closed shell, part cap): old cache entries of scans then no longer
 #: match. Twin-like meshes (closed, at most MAX_COACD_FACES faces) keep their keys.
 SCAN_RECIPE = 1

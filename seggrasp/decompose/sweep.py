@@ -15,7 +15,13 @@ import trimesh
 
 from seggrasp.decompose import workers as runner
 from seggrasp.decompose.cache import default_cache_dir, load_cached, save_cached
-from seggrasp.decompose.config import ASSET_CACHE_DIR, FAST_ANCHORS, MAX_COACD_FACES, DecompositionConfig
+from seggrasp.decompose.config import (
+    ASSET_CACHE_DIR,
+    FAST_ANCHORS,
+    MAX_COACD_FACES,
+    SCAN_SIMPLIFY_PASSES,
+    DecompositionConfig,
+)
 from seggrasp.decompose.mapping import Partition, dedupe_partitions
 from seggrasp.decompose.remesh import closed_shell
 from seggrasp.mesh import mesh_hash
@@ -146,11 +152,12 @@ class _Sweep:
         if self.working is None:
             started = time.perf_counter()
             tolerance = self.config.effective_simplify_tolerance
-            vertices, faces, closed = runner.simplify(self.mesh, tolerance, MAX_COACD_FACES)
+            passes = SCAN_SIMPLIFY_PASSES if self.scan else 1
+            vertices, faces, closed = runner.simplify(self.mesh, tolerance, MAX_COACD_FACES, passes)
             if self.scan and not closed and (tolerance > 0 or not runner.is_closed_manifold(self.mesh.vertices,
                                                                                               self.mesh.faces)):
                 shell = trimesh.Trimesh(*closed_shell(self.mesh.vertices, self.mesh.faces), process=False)
-                vertices, faces, closed = runner.simplify(shell, tolerance, MAX_COACD_FACES)
+                vertices, faces, closed = runner.simplify(shell, tolerance, MAX_COACD_FACES, passes)
             if len(faces) > MAX_COACD_FACES:
                 vertices, faces, closed = runner.limit_faces(vertices, faces, MAX_COACD_FACES)
             self.working = (vertices, faces, closed)

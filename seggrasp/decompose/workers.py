@@ -75,14 +75,16 @@ def is_closed_manifold(vertices: np.ndarray, faces: np.ndarray) -> bool:
     return _is_closed(_solid(vertices, faces))
 
 
-def simplify(mesh: trimesh.Trimesh, tolerance: float, max_faces: int | None = None
+def simplify(mesh: trimesh.Trimesh, tolerance: float, max_faces: int | None = None, passes: int = 1
              ) -> tuple[np.ndarray, np.ndarray, bool]:
     """Vertices and faces of `mesh` simplified with manifold3d within `tolerance` x its bounding-box diagonal, and
     whether the result is a closed manifold verified by manifold3d.
 
     manifold3d's edge collapses keep a closed manifold closed, so CoACD (which aborts on some non-manifold input)
     gets a valid mesh. With `max_faces`, the tolerance is doubled (up to MAX_SIMPLIFY_TOLERANCE) while the result has
-    more faces. A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and unverified
+    more faces. With `passes` > 1 the simplified solid is simplified again at the same tolerance, up to that many
+    passes in all, while a pass removes at least a tenth of the faces (manifold3d leaves many collapsible edges after
+    one pass of a dense mesh: 9976 faces after one pass of a 2.9M-face knife, 2624 after two). A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and unverified
     (False: CoACD then needs its own preprocessing).
     """
     vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
@@ -95,6 +97,11 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float, max_faces: int | None = No
         return vertices, faces, False
     diagonal = float(np.linalg.norm(mesh.extents))
     solid = solid.simplify(tolerance * diagonal)
+    for _ in range(passes - 1):
+        again = solid.simplify(tolerance * diagonal)
+        if again.is_empty() or again.num_tri() > 0.9 * solid.num_tri():
+            break
+        solid = again
     while max_faces is not None and solid.num_tri() > max_faces and tolerance < MAX_SIMPLIFY_TOLERANCE:
         tolerance = min(2.0 * tolerance, MAX_SIMPLIFY_TOLERANCE)
         solid = solid.simplify(tolerance * diagonal)
