@@ -95,6 +95,8 @@ def segment(
     working = mesh.mesh
     timings: dict[str, float] = {}
 
+    # Progress: on a mesh of millions of faces every stage takes seconds (each logs its own end).
+    logger.info("rendering %d views of %d faces at %d px", config.n_views, len(working.faces), config.image_size)
     start = time.perf_counter()
     views = render_views(working, camera_rig(config.n_views, seed=config.seed), image_size=config.image_size)
     timings["render"] = time.perf_counter() - start
@@ -112,10 +114,12 @@ def segment(
     coarse_labels = labels_from_scores(coarse)
     scores, labels, partitions = coarse, coarse_labels, []
     if config.refine != "none":
+        logger.info("decomposing %d faces (CoACD sweep)", len(working.faces))
         start = time.perf_counter()
         partitions = decompose_sweep(working, config.decomposition, Path(config.cache_dir) if config.cache_dir
                                      else None, config.workers)
         timings["decompose"] = time.perf_counter() - start
+        logger.info("fusing the votes over %d partitions (refine=%s)", len(partitions), config.refine)
         start = time.perf_counter()
         scores, labels = refine_labels(coarse, partitions, np.asarray(working.area_faces), config.refine,
                                        config.anchor)
