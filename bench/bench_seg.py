@@ -5,7 +5,8 @@
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
     python bench/bench_seg.py --meshes twin --quality      # mIoU per method over the twin, seeds 0-4, paired SEs
     python bench/bench_seg.py --meshes ycb --quality       # the same on the five labelled YCB scans
-    python bench/bench_seg.py --meshes ycb,big --big-faces 30000,300000 --seeds 1 --no-warm  # real and dense meshes
+    python bench/bench_seg.py --meshes ycb,perceived,big --big-faces 30000,300000,3000000 --seeds 3 --no-warm \
+        --cold-results table.md                            # issue 16's real-like meshes cold (times, memory, mIoU)
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
 
 Coarse scores come from the simulated detector (preset `typical` unless --preset), 10 views of `camera_rig`, and
@@ -247,7 +248,8 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
             config = DecompositionConfig(mode=mode, seed=args.seed,
                                          thresholds=tuple(t for t in PAPER_THRESHOLDS if t >= args.fast_from - 1e-9))
         with tempfile.TemporaryDirectory(prefix="seggrasp-bench-") as cache:
-            partitions, stats, decompose_s, peak_mb, decompose_cpu = sweep_in_child(item.mesh, config, cache, args.workers)
+            partitions, stats, decompose_s, peak_mb, decompose_cpu = sweep_in_child(item.mesh, config, cache,
+                                                                                    args.workers)
             warm = None
             if args.warm:
                 started = time.perf_counter()
@@ -336,7 +338,8 @@ def cold_report(records: list[dict], command: str) -> str:
         cpu = f" ({r['decompose_cpu_s']:.1f})" if "decompose_cpu_s" in r else ""
         bench_mb = f" / {r['bench_peak_rss_mb']:.0f}" if "bench_peak_rss_mb" in r else ""
         lines.append(f"| {r['mesh']} | {r['faces']} | {r['mode']} | {t['render']:.1f} | {t['decompose']:.1f}{cpu} | "
-                     f"{t['total_without_detector']:.1f} | {r['peak_rss_mb']:.0f}{bench_mb} | {len(r['coacd_seconds'])} | "
+                     f"{t['total_without_detector']:.1f} | {r['peak_rss_mb']:.0f}{bench_mb} | "
+                     f"{len(r['coacd_seconds'])} | "
                      f"{r['parts_per_partition'][0]} | {len(r['detector_seeds'])} | {r['miou']['none']:.3f} | "
                      f"{r['miou']['full']:.3f} |")
     fast = {r["mesh"]: r for r in records if r["mode"] == "fast"}
@@ -346,7 +349,8 @@ def cold_report(records: list[dict], command: str) -> str:
         diffs = np.concatenate([np.subtract(fast[n]["miou_per_seed"]["full"], ref[n]["miou_per_seed"]["full"])
                                 for n in common])
         se = diffs.std(ddof=1) / np.sqrt(diffs.size) if diffs.size > 1 else float("nan")
-        lines += ["", f"Full GeoFusion mIoU, fast - reference, on {', '.join(common)}: {100 * diffs.mean():+.2f} points "
+        lines += ["", f"Full GeoFusion mIoU, fast - reference, on {', '.join(common)}: "
+                  f"{100 * diffs.mean():+.2f} points "
                   f"(paired standard error {100 * se:.2f} points over {diffs.size} mesh x detector-seed pairs)."]
     return "\n".join(lines + ["", f"Measured by `{command}`."]) + "\n"
 
@@ -515,7 +519,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--meshes", default="twin,primitives",
                         help="comma list of: twin, primitives, ycb (the labelled YCB scans, see "
                              "seggrasp.datasets), multipart (the twin's scissors, kettles and eyeglasses), big (a twin object subdivided to each of --big-faces), "
-                             "perceived (--perceived-from sampled with 1 mm noise and reconstructed by seggrasp.perception), or "
+                             "perceived (--perceived-from with 1 mm noise, reconstructed by seggrasp.perception), "
+                             "or "
                              "mesh names")
     parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
@@ -548,7 +553,8 @@ def main(argv: list[str] | None = None) -> int:
 
     wanted = [w.strip() for w in args.meshes.split(",") if w.strip()]
     items: list[LabelledMesh] = []
-    twin = twin_meshes(args.twin_dir) if ({"twin", "big", "perceived"} & set(wanted)) or any("_" in w for w in wanted) else []
+    needs_twin = bool({"twin", "big", "perceived"} & set(wanted)) or any("_" in w for w in wanted)
+    twin = twin_meshes(args.twin_dir) if needs_twin else []
     if "twin" in wanted:
         items += twin
     if "primitives" in wanted:

@@ -26,6 +26,13 @@ Modes (`DecompositionConfig.mode`):
   --compare reference --seeds 20): 25.5x faster in total (15.9 s vs 403.5 s), full-GeoFusion mIoU 0.493 vs 0.491
   over detector seeds 0-19; the 30k-face knife cold in 2.4 s.
 
+Scans (fast mode). A mesh over MAX_COACD_FACES faces, or one that is not a closed manifold (a scan, a depth-fusion
+mesh), is decomposed as a scan: an open one goes to CoACD as a closed shell around it (`remesh.closed_shell`)
+instead of through CoACD's slow preprocessing; its working mesh gets up to SCAN_SIMPLIFY_PASSES manifold3d passes;
+the thresholds run from coarse to fine and none finer than a partition of SCAN_MAX_PARTS parts or more is run; its
+cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces (the twin) are decomposed as above and
+keep their keys. Measured: docs/results/cold-segmentation.md.
+
 Caching. Every CoACD run is cached on disk under a key hashing the mesh geometry (`seggrasp.mesh.mesh_hash`), the
 threshold, every CoACD parameter, the decimation target and the mapping version; the file holds the compact
 face -> part array. The writable cache lives in `$SEGGRASP_CACHE` or `~/.cache/seggrasp` (`decompositions/`);
@@ -37,7 +44,8 @@ run has a time budget (`DecompositionConfig.run_timeout`; a run over it is kille
 it), and every run is logged with its threshold and time.
 
 Layout: `config` (modes, CoACD parameters, `DecompositionConfig`), `mapping` (partitions, face -> hull), `cache`
-(on-disk runs), `workers` (CoACD in child processes), `sweep` (threshold selection and `decompose_sweep`).
+(on-disk runs), `workers` (CoACD in child processes), `remesh` (closed shells of open meshes), `sweep` (threshold
+selection and `decompose_sweep`).
 """
 
 from seggrasp.decompose.cache import default_cache_dir
@@ -57,9 +65,13 @@ from seggrasp.decompose.config import (
     PAPER_THRESHOLDS,
     PREPROCESS_MODES,
     RUN_TIMEOUT_S,
+    SCAN_MAX_PARTS,
+    SCAN_RECIPE,
+    SCAN_SIMPLIFY_PASSES,
     DecompositionConfig,
 )
 from seggrasp.decompose.mapping import Partition, canonical_parts, dedupe_partitions, hull_planes, map_faces_to_hulls
+from seggrasp.decompose.remesh import closed_shell
 from seggrasp.decompose.sweep import SweepStats, SweepTimeout, decompose_sweep, select_thresholds
 from seggrasp.decompose.workers import params_for, run_coacd_hulls, set_coacd_log_level, simplify
 from seggrasp.mesh import mesh_hash
@@ -67,7 +79,8 @@ from seggrasp.mesh import mesh_hash
 __all__ = [
     "ASSET_CACHE_DIR", "COACD_DEFAULTS", "COACD_LOG_LEVELS", "CONTAINMENT_TOLERANCE", "FAST_ANCHORS", "FAST_COACD",
     "FAST_MAX_RUNS", "FAST_SIMPLIFY_TOLERANCE", "FAST_THRESHOLDS", "MAPPING_VERSION", "MAX_COACD_FACES", "MODES",
-    "PAPER_THRESHOLDS", "PREPROCESS_MODES", "RUN_TIMEOUT_S", "DecompositionConfig", "Partition", "SweepStats",
+    "PAPER_THRESHOLDS", "PREPROCESS_MODES", "RUN_TIMEOUT_S", "SCAN_MAX_PARTS", "SCAN_RECIPE", "SCAN_SIMPLIFY_PASSES",
+    "DecompositionConfig", "closed_shell", "Partition", "SweepStats",
     "SweepTimeout", "canonical_parts", "decompose_sweep", "dedupe_partitions", "default_cache_dir", "hull_planes",
     "map_faces_to_hulls", "mesh_hash", "params_for", "run_coacd_hulls", "select_thresholds", "set_coacd_log_level",
     "simplify",

@@ -80,7 +80,8 @@ class DecompositionConfig:
     `coacd` overrides individual CoACD keyword arguments (keys as in `coacd.run_coacd`), on top of the mode's.
     `simplify_tolerance` simplifies the mesh before CoACD within that fraction of its diagonal (0 = never).
     `adaptive` runs only the thresholds needed to find every distinct partition of the grid (see the package
-    docstring). `scan_max_parts` caps the finest partition of a scan (None: SCAN_MAX_PARTS in fast mode). `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
+    docstring). `scan_max_parts` caps the finest partition of a scan (None: SCAN_MAX_PARTS in fast mode).
+    `run_timeout` is the time budget of one CoACD run in CPU seconds (None: RUN_TIMEOUT_S of the mode).
     """
 
     mode: str = "fast"

@@ -84,8 +84,9 @@ def simplify(mesh: trimesh.Trimesh, tolerance: float, max_faces: int | None = No
     gets a valid mesh. With `max_faces`, the tolerance is doubled (up to MAX_SIMPLIFY_TOLERANCE) while the result has
     more faces. With `passes` > 1 the simplified solid is simplified again at the same tolerance, up to that many
     passes in all, while a pass removes at least a tenth of the faces (manifold3d leaves many collapsible edges after
-    one pass of a dense mesh: 9976 faces after one pass of a 2.9M-face knife, 2624 after two). A mesh that is not a closed manifold, or a tolerance of 0, is returned unchanged and unverified
-    (False: CoACD then needs its own preprocessing).
+    one pass of a dense mesh: 9976 faces after one pass of a 2.9M-face knife, 2624 after two). A mesh that is not a
+    closed manifold, or a tolerance of 0, is returned unchanged and unverified (False: CoACD then needs its own
+    preprocessing).
     """
     vertices = np.array(mesh.vertices, dtype=np.float64, order="C")
     faces = np.array(mesh.faces, dtype=np.int64, order="C")
