@@ -37,7 +37,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seggrasp.decompose import PAPER_THRESHOLDS, DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.io import atomic_save_npz, atomic_write_text  # noqa: E402
-from seggrasp.fusion import ANCHOR_MODES, NORMALISATIONS, REFINE_MODES, refine_labels, refine_scores  # noqa: E402
+from seggrasp.fusion import (  # noqa: E402
+    ANCHOR_MODES, NORMALISATIONS, REFINE_MODES, refine_labels, refine_scores, soft_anchor_prompts,
+)
 from seggrasp.labels import PartLabels, read_labels  # noqa: E402
 from seggrasp.mesh import mesh_hash  # noqa: E402
 from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
@@ -360,11 +362,14 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
 
 def method_labels(scores: np.ndarray, partitions, areas: np.ndarray) -> dict[str, np.ndarray]:
     """Labels of every refinement mode (`REFINE_MODES`, "full" = the paper's GeoFusion), of GeoFusion with every
-    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, and of the shipped default (`refine_labels` defaults)."""
+    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, of soft anchoring without its evidence gate, and of the
+    shipped default (`refine_labels` defaults)."""
     labels = {mode: labels_from_scores(refine_scores(scores, partitions, areas, mode)) for mode in REFINE_MODES}
     for anchor in ANCHOR_MODES:
         if anchor != "off":
             labels[f"anchor-{anchor}"] = refine_labels(scores, partitions, areas, "full", anchor)[1]
+    refined = refine_scores(scores, partitions, areas, "full")
+    labels["anchor-soft-ungated"] = soft_anchor_prompts(labels["full"], refined, partitions, areas, min_ratio=0.0)
     labels["default"] = refine_labels(scores, partitions, areas)[1]
     return labels
 
@@ -421,8 +426,10 @@ def quality_report(records: list[dict], title: str) -> str:
     below = [c for c in categories if summaries["default"]["categories"][c] <= summaries["full"]["categories"][c]]
     gaps = {n: np.mean(e["miou"]["default"]) - np.mean(e["miou"]["full"]) for n, e in per_mesh.items()}
     worst = min(gaps, key=gaps.get)
+    far_below = [f"{n} {gaps[n]:+.3f}" for n in sorted(gaps, key=gaps.get) if gaps[n] < -0.05]
     lines += ["", f"Default vs coarse: {d_coarse:+.3f} +- {se_coarse:.3f}. Categories where the default is not above "
-              f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}."]
+              f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}. "
+              f"Meshes more than 0.05 below GeoFusion: {', '.join(far_below) or 'none'}."]
     lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",
               "|---|---|---|---|---|---|"]
     for name, e in sorted(per_mesh.items(), key=lambda kv: (kv[1]["category"], kv[0])):

@@ -40,6 +40,9 @@ def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofus
     assert mean == pytest.approx(0.175) and se == pytest.approx(0.025)
     report = bench_seg.quality_report(records, "test")
     assert "not above GeoFusion: b." in report and "Worst mesh, default - GeoFusion: b1 -0.050" in report
+    assert "more than 0.05 below GeoFusion: none." in report  # b1 is exactly 0.05 below
+    records[2]["miou"]["default"] = 0.3
+    assert "more than 0.05 below GeoFusion: b1 -0.100." in bench_seg.quality_report(records, "test")
     assert "| a1 | a | 0.400 | 0.500 | 0.600 | +0.100 +- 0.100 |" in report
 
 
@@ -56,3 +59,14 @@ def test_ycb_set_without_the_scans_is_a_clear_error(monkeypatch, tmp_path, capsy
     with pytest.raises(SystemExit):
         bench_seg.main(["--meshes", "ycb", "--quality"])
     assert "YCB scans not found" in capsys.readouterr().err
+
+
+def test_method_labels_show_the_default_and_soft_anchoring_without_its_gate():
+    # three convex parts, prompts handle / blade / pivot; the pivot's evidence is weak everywhere (tests/test_fusion.py)
+    from seggrasp.decompose import Partition
+
+    scores = np.repeat([[0.7, 0.29, 0.01], [0.43, 0.5, 0.07], [0.6, 0.38, 0.02]], 2, axis=0)
+    partitions = [Partition(0.02, np.arange(6)), Partition(0.1, np.array([0, 0, 1, 1, 2, 2]))]
+    labels = bench_seg.method_labels(scores, partitions, np.ones(6))
+    np.testing.assert_array_equal(labels["default"], labels["anchor-soft"])
+    assert (labels["anchor-soft-ungated"] == 2).any() and not (labels["default"] == 2).any()
