@@ -25,6 +25,7 @@ import resource
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -360,31 +361,36 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
         print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
 
 
-def method_labels(scores: np.ndarray, partitions, areas: np.ndarray) -> dict[str, np.ndarray]:
+def method_labels(scores: np.ndarray, partitions, areas: np.ndarray,
+                  min_ratios: Sequence[float] = ()) -> dict[str, np.ndarray]:
     """Labels of every refinement mode (`REFINE_MODES`, "full" = the paper's GeoFusion), of GeoFusion with every
-    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, of soft anchoring without its evidence gate, and of the
-    shipped default (`refine_labels` defaults)."""
+    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, of soft anchoring without its evidence gate and with the
+    gate at each of `min_ratios`, and of the shipped default (`refine_labels` defaults)."""
     labels = {mode: labels_from_scores(refine_scores(scores, partitions, areas, mode)) for mode in REFINE_MODES}
     for anchor in ANCHOR_MODES:
         if anchor != "off":
             labels[f"anchor-{anchor}"] = refine_labels(scores, partitions, areas, "full", anchor)[1]
     refined = refine_scores(scores, partitions, areas, "full")
     labels["anchor-soft-ungated"] = soft_anchor_prompts(labels["full"], refined, partitions, areas, min_ratio=0.0)
+    for ratio in min_ratios:
+        labels[f"anchor-soft-gate{ratio:g}"] = soft_anchor_prompts(labels["full"], refined, partitions, areas,
+                                                                   min_ratio=ratio)
     labels["default"] = refine_labels(scores, partitions, areas)[1]
     return labels
 
 
 def quality_records(items: list[LabelledMesh], args) -> list[dict]:
-    """One record per (mesh, detector/camera seed): the mIoU of every method of `method_labels` on the default-mode
-    sweep (warm from the bundled caches for the twin, from $SEGGRASP_CACHE otherwise)."""
+    """One record per (mesh, detector/camera seed --first-seed.. --first-seed + --seeds - 1): the mIoU of every
+    method of `method_labels` (with --min-ratios) on the default-mode sweep (warm from the bundled caches for the
+    twin, from $SEGGRASP_CACHE otherwise)."""
     records = []
     for item in items:
         partitions = decompose_sweep(item.mesh, DecompositionConfig(seed=args.seed), workers=args.workers)
         areas, gt, n_parts = item.mesh.area_faces, item.labels.face_labels, len(item.labels.parts)
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             scores, _ = coarse_scores(item, args.preset, seed, args.views, args.image_size)
-            miou = {m: shape_miou(labels, gt, n_parts, areas) for m, labels in method_labels(scores, partitions,
-                                                                                              areas).items()}
+            labels = method_labels(scores, partitions, areas, args.min_ratios)
+            miou = {m: shape_miou(pred, gt, n_parts, areas) for m, pred in labels.items()}
             records.append({"mesh": item.name, "category": item.category, "seed": seed, "miou": miou})
     return records
 
@@ -470,6 +476,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="mIoU of every method, mean over categories, over --seeds detector/camera seeds, with "
                              "paired standard errors against coarse and the paper's GeoFusion")
     parser.add_argument("--results", type=Path, help="with --quality: also write the report (markdown) here")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="with --quality: detector/camera seeds start here (e.g. 5 with --seeds 5: seeds 5-9)")
+    parser.add_argument("--min-ratios", default="",
+                        help="with --quality: comma list of evidence-gate ratios of soft anchoring to report "
+                             "besides the default (seggrasp.fusion.ANCHOR_MIN_RATIO)")
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
@@ -499,6 +510,14 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
     if args.results is not None and not args.quality:
         parser.error("--results needs --quality")
+    if args.first_seed < 0:
+        parser.error(f"--first-seed must be non-negative, got {args.first_seed}")
+    try:
+        args.min_ratios = [float(r) for r in args.min_ratios.split(",") if r.strip()]
+    except ValueError:
+        parser.error(f"--min-ratios must be a comma list of numbers, got {args.min_ratios!r}")
+    if any(not 0.0 <= r <= 1.0 for r in args.min_ratios):
+        parser.error(f"--min-ratios must lie in [0, 1], got {args.min_ratios}")
     if args.normalisation is None:
         from seggrasp.fusion import SHIPPED_NORMALISATION
 

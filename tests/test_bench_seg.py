@@ -70,3 +70,13 @@ def test_method_labels_show_the_default_and_soft_anchoring_without_its_gate():
     labels = bench_seg.method_labels(scores, partitions, np.ones(6))
     np.testing.assert_array_equal(labels["default"], labels["anchor-soft"])
     assert (labels["anchor-soft-ungated"] == 2).any() and not (labels["default"] == 2).any()
+    gated = bench_seg.method_labels(scores, partitions, np.ones(6), min_ratios=[0.1, 0.3])
+    np.testing.assert_array_equal(gated["anchor-soft-gate0.1"], labels["anchor-soft-ungated"])  # the pivot passes 0.1
+    np.testing.assert_array_equal(gated["anchor-soft-gate0.3"], labels["default"])
+
+
+def test_quality_seed_and_gate_options_are_checked(capsys):
+    for bad in (["--first-seed", "-1"], ["--min-ratios", "0.3,x"], ["--min-ratios", "1.5"]):
+        with pytest.raises(SystemExit):
+            bench_seg.main(["--meshes", "twin", "--quality", *bad])
+    assert "--min-ratios must lie in [0, 1]" in capsys.readouterr().err
