@@ -5,6 +5,7 @@
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
     python bench/bench_seg.py --meshes twin --quality      # mIoU per method over the twin, seeds 0-4, paired SEs
     python bench/bench_seg.py --meshes ycb --quality       # the same on the five labelled YCB scans
+    python bench/bench_seg.py --meshes twin --quality --first-seed 5 --min-ratios 0.2,0.4  # seeds 5-9, gate study
     python bench/bench_seg.py --meshes ycb,big --big-faces 30000,300000 --seeds 1 --no-warm  # real and dense meshes
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
 

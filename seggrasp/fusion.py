@@ -352,8 +352,9 @@ def soft_anchor_probabilities(
     prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
 ) -> np.ndarray:
     """(F, P) per-face distribution over the prompts behind soft anchoring: score share plus `anchor_priors`,
-    normalised per face (all zero for a face with no vote and no prior). Its row argmax is the label
-    `soft_anchor_prompts` gives a face, and for GeoFusion's refined scores the default `refine_labels` label."""
+    normalised per face (all zero for a face with no vote and no prior, which stays unknown). On faces with a
+    vote or a prior its row argmax is the label `soft_anchor_prompts` gives when `labels` is the argmax of `scores`;
+    for GeoFusion's refined scores that is the default `refine_labels` label."""
     scores = np.asarray(scores, dtype=np.float64)
     return _shares(_shares(scores) + anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio))
 
