@@ -406,7 +406,8 @@ def _paired(records: list[dict], method: str, against: str) -> tuple[float, floa
 
 def quality_report(records: list[dict], title: str) -> str:
     """Markdown: per method the category-mean mIoU (mean over seeds) with paired differences to coarse and to the
-    paper's GeoFusion; per category; per mesh (coarse, GeoFusion, default, default - GeoFusion)."""
+    paper's GeoFusion; per category (coarse, GeoFusion, default and the default's paired differences); per mesh
+    (coarse, GeoFusion, default, default - GeoFusion)."""
     methods = list(records[0]["miou"])
     seeds = sorted({r["seed"] for r in records})
     per_mesh: dict[str, dict] = {}
@@ -437,6 +438,13 @@ def quality_report(records: list[dict], title: str) -> str:
     lines += ["", f"Default vs coarse: {d_coarse:+.3f} +- {se_coarse:.3f}. Categories where the default is not above "
               f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}. "
               f"Meshes more than 0.05 below GeoFusion: {', '.join(far_below) or 'none'}."]
+    lines += ["", "| category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) | "
+              "default - coarse |", "|---|---|---|---|---|---|"]
+    for c in categories:
+        in_category = [r for r in records if r["category"] == c]
+        (d_geo, se_geo), (d_coarse, se_coarse) = (_paired(in_category, "default", m) for m in ("full", "none"))
+        means = " | ".join(f"{summaries[m]['categories'][c]:.3f}" for m in ("none", "full", "default"))
+        lines.append(f"| {c} | {means} | {d_geo:+.3f} +- {se_geo:.3f} | {d_coarse:+.3f} +- {se_coarse:.3f} |")
     lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",
               "|---|---|---|---|---|---|"]
     for name, e in sorted(per_mesh.items(), key=lambda kv: (kv[1]["category"], kv[0])):

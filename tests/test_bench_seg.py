@@ -44,6 +44,8 @@ def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofus
     records[2]["miou"]["default"] = 0.3
     assert "more than 0.05 below GeoFusion: b1 -0.100." in bench_seg.quality_report(records, "test")
     assert "| a1 | a | 0.400 | 0.500 | 0.600 | +0.100 +- 0.100 |" in report
+    # category b: default - GeoFusion per seed -0.1 and 0.0, default - coarse 0.1 and 0.2
+    assert "| b | 0.300 | 0.500 | 0.450 | -0.050 +- 0.050 | +0.150 +- 0.050 |" in report
 
 
 def test_quality_needs_a_known_mesh_set_and_results_need_quality(capsys):
