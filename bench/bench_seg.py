@@ -5,6 +5,7 @@
     python bench/bench_seg.py --normalisations             # GeoFusion S_rev normalisations on cached sweeps
     python bench/bench_seg.py --meshes twin --quality      # mIoU per method over the twin, seeds 0-4, paired SEs
     python bench/bench_seg.py --meshes ycb --quality       # the same on the five labelled YCB scans
+    python bench/bench_seg.py --meshes twin --quality --first-seed 5 --min-ratios 0.2,0.4  # seeds 5-9, gate study
     python bench/bench_seg.py --meshes ycb,perceived,big --big-faces 30000,300000,3000000 --seeds 3 --no-warm \
         --cold-results table.md                            # issue 16's real-like meshes cold (times, memory, mIoU)
     python bench/bench_seg.py --compare reference --rescore  # both modes' stored partitions under seeds 0-2
@@ -26,6 +27,7 @@ import resource
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -38,7 +40,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from seggrasp.decompose import PAPER_THRESHOLDS, DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.io import atomic_save_npz, atomic_write_text  # noqa: E402
-from seggrasp.fusion import ANCHOR_MODES, NORMALISATIONS, REFINE_MODES, refine_labels, refine_scores  # noqa: E402
+from seggrasp.fusion import (  # noqa: E402
+    ANCHOR_MODES, NORMALISATIONS, REFINE_MODES, refine_labels, refine_scores, soft_anchor_prompts,
+)
 from seggrasp.labels import PartLabels, read_labels  # noqa: E402
 from seggrasp.mesh import mesh_hash  # noqa: E402
 from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
@@ -408,28 +412,36 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
         print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
 
 
-def method_labels(scores: np.ndarray, partitions, areas: np.ndarray) -> dict[str, np.ndarray]:
+def method_labels(scores: np.ndarray, partitions, areas: np.ndarray,
+                  min_ratios: Sequence[float] = ()) -> dict[str, np.ndarray]:
     """Labels of every refinement mode (`REFINE_MODES`, "full" = the paper's GeoFusion), of GeoFusion with every
-    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, and of the shipped default (`refine_labels` defaults)."""
+    anchoring mode of `seggrasp.fusion.ANCHOR_MODES`, of soft anchoring without its evidence gate and with the
+    gate at each of `min_ratios`, and of the shipped default (`refine_labels` defaults)."""
     labels = {mode: labels_from_scores(refine_scores(scores, partitions, areas, mode)) for mode in REFINE_MODES}
     for anchor in ANCHOR_MODES:
         if anchor != "off":
             labels[f"anchor-{anchor}"] = refine_labels(scores, partitions, areas, "full", anchor)[1]
+    refined = refine_scores(scores, partitions, areas, "full")
+    labels["anchor-soft-ungated"] = soft_anchor_prompts(labels["full"], refined, partitions, areas, min_ratio=0.0)
+    for ratio in min_ratios:
+        labels[f"anchor-soft-gate{ratio:g}"] = soft_anchor_prompts(labels["full"], refined, partitions, areas,
+                                                                   min_ratio=ratio)
     labels["default"] = refine_labels(scores, partitions, areas)[1]
     return labels
 
 
 def quality_records(items: list[LabelledMesh], args) -> list[dict]:
-    """One record per (mesh, detector/camera seed): the mIoU of every method of `method_labels` on the default-mode
-    sweep (warm from the bundled caches for the twin, from $SEGGRASP_CACHE otherwise)."""
+    """One record per (mesh, detector/camera seed --first-seed.. --first-seed + --seeds - 1): the mIoU of every
+    method of `method_labels` (with --min-ratios) on the default-mode sweep (warm from the bundled caches for the
+    twin, from $SEGGRASP_CACHE otherwise)."""
     records = []
     for item in items:
         partitions = decompose_sweep(item.mesh, DecompositionConfig(seed=args.seed), workers=args.workers)
         areas, gt, n_parts = item.mesh.area_faces, item.labels.face_labels, len(item.labels.parts)
-        for seed in range(args.seeds):
+        for seed in range(args.first_seed, args.first_seed + args.seeds):
             scores, _ = coarse_scores(item, args.preset, seed, args.views, args.image_size)
-            miou = {m: shape_miou(labels, gt, n_parts, areas) for m, labels in method_labels(scores, partitions,
-                                                                                              areas).items()}
+            labels = method_labels(scores, partitions, areas, args.min_ratios)
+            miou = {m: shape_miou(pred, gt, n_parts, areas) for m, pred in labels.items()}
             records.append({"mesh": item.name, "category": item.category, "seed": seed, "miou": miou})
     return records
 
@@ -444,7 +456,8 @@ def _paired(records: list[dict], method: str, against: str) -> tuple[float, floa
 
 def quality_report(records: list[dict], title: str) -> str:
     """Markdown: per method the category-mean mIoU (mean over seeds) with paired differences to coarse and to the
-    paper's GeoFusion; per category; per mesh (coarse, GeoFusion, default, default - GeoFusion)."""
+    paper's GeoFusion; per category (coarse, GeoFusion, default and the default's paired differences); per mesh
+    (coarse, GeoFusion, default, default - GeoFusion)."""
     methods = list(records[0]["miou"])
     seeds = sorted({r["seed"] for r in records})
     per_mesh: dict[str, dict] = {}
@@ -471,8 +484,17 @@ def quality_report(records: list[dict], title: str) -> str:
     below = [c for c in categories if summaries["default"]["categories"][c] <= summaries["full"]["categories"][c]]
     gaps = {n: np.mean(e["miou"]["default"]) - np.mean(e["miou"]["full"]) for n, e in per_mesh.items()}
     worst = min(gaps, key=gaps.get)
+    far_below = [f"{n} {gaps[n]:+.3f}" for n in sorted(gaps, key=gaps.get) if gaps[n] < -0.05]
     lines += ["", f"Default vs coarse: {d_coarse:+.3f} +- {se_coarse:.3f}. Categories where the default is not above "
-              f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}."]
+              f"GeoFusion: {', '.join(below) or 'none'}. Worst mesh, default - GeoFusion: {worst} {gaps[worst]:+.3f}. "
+              f"Meshes more than 0.05 below GeoFusion: {', '.join(far_below) or 'none'}."]
+    lines += ["", "| category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) | "
+              "default - coarse |", "|---|---|---|---|---|---|"]
+    for c in categories:
+        in_category = [r for r in records if r["category"] == c]
+        (d_geo, se_geo), (d_coarse, se_coarse) = (_paired(in_category, "default", m) for m in ("full", "none"))
+        means = " | ".join(f"{summaries[m]['categories'][c]:.3f}" for m in ("none", "full", "default"))
+        lines.append(f"| {c} | {means} | {d_geo:+.3f} +- {se_geo:.3f} | {d_coarse:+.3f} +- {se_coarse:.3f} |")
     lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",
               "|---|---|---|---|---|---|"]
     for name, e in sorted(per_mesh.items(), key=lambda kv: (kv[1]["category"], kv[0])):
@@ -514,6 +536,11 @@ def main(argv: list[str] | None = None) -> int:
                              "paired standard errors against coarse and the paper's GeoFusion")
     parser.add_argument("--results", type=Path, help="with --quality: also write the report (markdown) here")
     parser.add_argument("--cold-results", type=Path, help="write the table of the cold runs (markdown) here")
+    parser.add_argument("--first-seed", type=int, default=0,
+                        help="with --quality: detector/camera seeds start here (e.g. 5 with --seeds 5: seeds 5-9)")
+    parser.add_argument("--min-ratios", default="",
+                        help="with --quality: comma list of evidence-gate ratios of soft anchoring to report "
+                             "besides the default (seggrasp.fusion.ANCHOR_MIN_RATIO)")
     parser.add_argument("--rescore-modes", help="comma list of stored sweeps to rescore (default: the compared modes)")
     parser.add_argument("--fast-from", type=float, help="fast mode on the paper grid from this threshold (study)")
     parser.add_argument("--meshes", default="twin,primitives",
@@ -540,12 +567,20 @@ def main(argv: list[str] | None = None) -> int:
                         help="run only this mode now (the table also shows the other mode's records with --resume)")
     args = parser.parse_args(argv)
     args.argv = argv
-    if args.results is not None and not args.quality:
-        parser.error("--results needs --quality")
     if args.seeds is None:
         args.seeds = 5 if args.quality else 3
     if args.seeds < 1:
         parser.error(f"--seeds must be at least 1, got {args.seeds}")
+    if args.results is not None and not args.quality:
+        parser.error("--results needs --quality")
+    if args.first_seed < 0:
+        parser.error(f"--first-seed must be non-negative, got {args.first_seed}")
+    try:
+        args.min_ratios = [float(r) for r in args.min_ratios.split(",") if r.strip()]
+    except ValueError:
+        parser.error(f"--min-ratios must be a comma list of numbers, got {args.min_ratios!r}")
+    if any(not 0.0 <= r <= 1.0 for r in args.min_ratios):
+        parser.error(f"--min-ratios must lie in [0, 1], got {args.min_ratios}")
     if args.normalisation is None:
         from seggrasp.fusion import SHIPPED_NORMALISATION
 

@@ -58,9 +58,20 @@ assigned to a prompt (`assign_parts_to_prompts`, as above) adds ANCHOR_PRIOR / A
 on its faces; the label is the argmax of share plus priors. A face the fused evidence holds firmly for another prompt
 keeps it (the prior only decides where the evidence is close: the fallback to GeoFusion), a part anchored to the
 same prompt on every level takes it outright, and a prompt that GeoFusion left without faces still gets the faces
-where its share is within the prior of the winner's. Measured against GeoFusion and hard anchoring on the twin and
-on the labelled YCB scans over several detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin`
-and `--meshes ycb` (results in docs/results/).
+where its share is within the prior of the winner's.
+
+Evidence gate (`competing_prompts`, ANCHOR_MIN_RATIO). A prompt whose share is far below the leading prompt's on
+every part of a level has no part there that its evidence picks out: typically a thin part (a scissors' pivot
+screw, an eyeglass bridge) that is no convex part at the coarse levels and is boxed mostly by whole-object boxes.
+Scaled by its own best part (as `assign_parts_to_prompts` does), such a prompt still wins the assignment of the part
+its little evidence leans to, usually a big part another prompt holds, and pushes that prompt onto a wrong part.
+So on each level only the prompts whose share reaches ANCHOR_MIN_RATIO times the leading share on at least one
+part take part in the assignment; the others get no prior there and keep their GeoFusion faces (the fallback to
+GeoFusion, per prompt and level). `soft_anchor_probabilities` gives the per-face distribution behind the soft
+labels (share plus priors, normalised), for callers that weigh parts by confidence.
+Measured against GeoFusion, hard and ungated soft anchoring on the twin (with its multi-part categories) and on the
+labelled YCB scans over ten detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin` and
+`--meshes ycb` (results in docs/results/seg-quality-*.md).
 """
 
 from __future__ import annotations
@@ -81,6 +92,9 @@ SHIPPED_NORMALISATION = "literal"
 #: coarsest levels with a part per prompt (a face anchored to the same prompt on every level always takes it).
 ANCHOR_PRIOR = 1.0
 ANCHOR_LEVELS = 2
+#: Soft anchoring's evidence gate: a prompt joins a level's assignment only if on some part of it its share is at
+#: least this fraction of the leading prompt's share (module docstring, "Evidence gate"; docs/results/fusion.md).
+ANCHOR_MIN_RATIO = 0.3
 
 
 def _check_inputs(scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray) -> None:
@@ -271,14 +285,26 @@ def refine_labels(
     return refined, labels
 
 
-def soft_anchor_prompts(
-    labels: np.ndarray, scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
-    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS,
+def competing_prompts(distributions: np.ndarray, min_ratio: float = ANCHOR_MIN_RATIO) -> np.ndarray:
+    """(P,) bool: the prompts whose share reaches `min_ratio` times the leading prompt's share on at least one part
+    of (K, P) part `distributions` (module docstring, "Evidence gate")."""
+    distributions = np.asarray(distributions, dtype=np.float64)
+    if distributions.ndim != 2:
+        raise ValueError(f"distributions must be a (parts, prompts) matrix, got shape {distributions.shape}")
+    if not 0.0 <= min_ratio <= 1.0:
+        raise ValueError(f"min_ratio must lie in [0, 1], got {min_ratio}")
+    leading = distributions.max(axis=1, keepdims=True)
+    ratio = np.divide(distributions, leading, out=np.zeros_like(distributions), where=leading > 0)
+    return (ratio >= min_ratio).any(axis=0) & (distributions > 0).any(axis=0)
+
+
+def anchor_priors(
+    scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
+    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
 ) -> np.ndarray:
-    """Labels after soft anchoring (module docstring, "Soft anchoring"): on each of the `n_levels` coarsest
-    partitions with a part per prompt, the part `assign_parts_to_prompts` gives a prompt adds `prior / n_levels` to
-    that prompt's share of every face's score distribution (each row of `scores` divided by its sum); faces a prior
-    touches take the argmax of their distribution plus priors, every other face keeps its label from `labels`."""
+    """(F, P) soft-anchoring priors: on each of the `n_levels` coarsest partitions with a part per prompt, the part
+    `assign_parts_to_prompts` gives each of the `competing_prompts` adds `prior / n_levels` to that prompt on its
+    faces (`scores` are the refined scores whose part distributions decide)."""
     scores = np.asarray(scores, dtype=np.float64)
     face_areas = np.asarray(face_areas, dtype=np.float64)
     _check_inputs(scores, partitions, face_areas)
@@ -291,15 +317,46 @@ def soft_anchor_prompts(
     for partition in levels:
         means = part_mean_scores(scores, partition.part_of_face, face_areas)
         distributions = means / np.maximum(means.sum(axis=1, keepdims=True), 1e-18)
-        for prompt, part in enumerate(assign_parts_to_prompts(distributions)):
+        competing = np.flatnonzero(competing_prompts(distributions, min_ratio))
+        if len(competing) == 0:
+            continue
+        for prompt, part in zip(competing, assign_parts_to_prompts(distributions[:, competing])):
             if part >= 0:
                 priors[partition.part_of_face == part, prompt] += prior / len(levels)
+    return priors
+
+
+def _shares(scores: np.ndarray) -> np.ndarray:
+    """Each row of `scores` divided by its sum (zero rows stay zero)."""
     total = scores.sum(axis=1, keepdims=True)
-    shares = np.divide(scores, total, out=np.zeros_like(scores), where=total > 0)
+    return np.divide(scores, total, out=np.zeros_like(scores), where=total > 0)
+
+
+def soft_anchor_prompts(
+    labels: np.ndarray, scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
+    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
+) -> np.ndarray:
+    """Labels after soft anchoring (module docstring, "Soft anchoring" and "Evidence gate"): faces that
+    `anchor_priors` touches take the argmax of their score distribution (each row of `scores` divided by its sum)
+    plus priors, every other face keeps its label from `labels`."""
+    scores = np.asarray(scores, dtype=np.float64)
+    priors = anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio)
     anchored = np.asarray(labels, dtype=np.int64).copy()
     touched = priors.any(axis=1)
-    anchored[touched] = np.argmax(shares + priors, axis=1)[touched]
+    anchored[touched] = np.argmax(_shares(scores) + priors, axis=1)[touched]
     return anchored
+
+
+def soft_anchor_probabilities(
+    scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
+    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
+) -> np.ndarray:
+    """(F, P) per-face distribution over the prompts behind soft anchoring: score share plus `anchor_priors`,
+    normalised per face (all zero for a face with no vote and no prior, which stays unknown). On faces with a
+    vote or a prior its row argmax is the label `soft_anchor_prompts` gives when `labels` is the argmax of `scores`;
+    for GeoFusion's refined scores that is the default `refine_labels` label."""
+    scores = np.asarray(scores, dtype=np.float64)
+    return _shares(_shares(scores) + anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio))
 
 
 #: Anchoring modes of `refine_labels`: "off" = the paper's GeoFusion labels, "hard" = `anchor_prompts` (one part

@@ -41,7 +41,12 @@ def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofus
     assert mean == pytest.approx(0.175) and se == pytest.approx(0.025)
     report = bench_seg.quality_report(records, "test")
     assert "not above GeoFusion: b." in report and "Worst mesh, default - GeoFusion: b1 -0.050" in report
+    assert "more than 0.05 below GeoFusion: none." in report  # b1 is exactly 0.05 below
+    records[2]["miou"]["default"] = 0.3
+    assert "more than 0.05 below GeoFusion: b1 -0.100." in bench_seg.quality_report(records, "test")
     assert "| a1 | a | 0.400 | 0.500 | 0.600 | +0.100 +- 0.100 |" in report
+    # category b: default - GeoFusion per seed -0.1 and 0.0, default - coarse 0.1 and 0.2
+    assert "| b | 0.300 | 0.500 | 0.450 | -0.050 +- 0.050 | +0.150 +- 0.050 |" in report
 
 
 def test_quality_needs_a_known_mesh_set_and_results_need_quality(capsys):
@@ -85,3 +90,24 @@ def test_cold_report_lists_every_run_and_the_paired_fast_reference_gap():
     # differences 0.1 and 0.3: mean +20 points, standard error 10 points; only mesh a has both modes
     assert "on a: +20.00 points (paired standard error 10.00 points over 2 mesh x detector-seed pairs)" in report
     assert report.rstrip().endswith("Measured by `python bench/bench_seg.py --x`.")
+
+
+def test_method_labels_show_the_default_and_soft_anchoring_without_its_gate():
+    # three convex parts, prompts handle / blade / pivot; the pivot's evidence is weak everywhere (tests/test_fusion.py)
+    from seggrasp.decompose import Partition
+
+    scores = np.repeat([[0.7, 0.29, 0.01], [0.43, 0.5, 0.07], [0.6, 0.38, 0.02]], 2, axis=0)
+    partitions = [Partition(0.02, np.arange(6)), Partition(0.1, np.array([0, 0, 1, 1, 2, 2]))]
+    labels = bench_seg.method_labels(scores, partitions, np.ones(6))
+    np.testing.assert_array_equal(labels["default"], labels["anchor-soft"])
+    assert (labels["anchor-soft-ungated"] == 2).any() and not (labels["default"] == 2).any()
+    gated = bench_seg.method_labels(scores, partitions, np.ones(6), min_ratios=[0.1, 0.3])
+    np.testing.assert_array_equal(gated["anchor-soft-gate0.1"], labels["anchor-soft-ungated"])  # the pivot passes 0.1
+    np.testing.assert_array_equal(gated["anchor-soft-gate0.3"], labels["default"])
+
+
+def test_quality_seed_and_gate_options_are_checked(capsys):
+    for bad in (["--first-seed", "-1"], ["--min-ratios", "0.3,x"], ["--min-ratios", "1.5"]):
+        with pytest.raises(SystemExit):
+            bench_seg.main(["--meshes", "twin", "--quality", *bad])
+    assert "--min-ratios must lie in [0, 1]" in capsys.readouterr().err

@@ -16,9 +16,11 @@ from seggrasp.fusion import (
     anchor_prompts,
     assign_parts_to_prompts,
     coarsest_with_parts,
+    competing_prompts,
     refine_labels,
     refine_scores,
     soft_anchor_prompts,
+    soft_anchor_probabilities,
 )
 from seggrasp.vote import labels_from_scores
 
@@ -193,6 +195,44 @@ def test_soft_anchoring_prior_decides_close_faces_and_agreeing_levels_decide_out
                                   [0, 0, 1, 1])
     with pytest.raises(ValueError, match="prior"):
         soft_anchor_prompts(start, scores, levels, np.ones(4), prior=-1.0)
+
+
+def test_competing_prompts_need_a_part_where_their_share_nears_the_leader():
+    # prompt 2 (a thin part) reaches at most 0.07 / 0.5 = 0.14 of the leading share; prompt 1 at least 0.4
+    distributions = np.array([[0.7, 0.29, 0.01], [0.43, 0.5, 0.07], [0.6, 0.38, 0.02]])
+    assert competing_prompts(distributions, 0.3).tolist() == [True, True, False]
+    assert competing_prompts(distributions, 0.1).tolist() == [True, True, True]
+    assert competing_prompts(np.array([[1.0, 0.0]]), 0.0).tolist() == [True, False]  # no evidence: never competes
+    with pytest.raises(ValueError, match="min_ratio"):
+        competing_prompts(distributions, 1.5)
+
+
+# Scissors-like: three convex parts of two faces each, A and C of the handle, B the blade; prompts handle, blade,
+# pivot. The pivot (a thin part inside no convex part here) has little evidence anywhere, most of it on the blade.
+WEAK_PROMPT_SCORES = np.repeat([[0.7, 0.29, 0.01], [0.43, 0.5, 0.07], [0.6, 0.38, 0.02]], 2, axis=0)
+WEAK_PROMPT_LEVEL = [Partition(0.1, np.array([0, 0, 1, 1, 2, 2]))]
+
+
+def test_soft_anchoring_leaves_a_prompt_without_competing_evidence_out_of_the_assignment():
+    geofusion = labels_from_scores(WEAK_PROMPT_SCORES)
+    np.testing.assert_array_equal(geofusion, [0, 0, 1, 1, 0, 0])
+    # scaled by its own best part, the pivot wins the blade's part and pushes the blade onto a handle part
+    ungated = soft_anchor_prompts(geofusion, WEAK_PROMPT_SCORES, WEAK_PROMPT_LEVEL, np.ones(6), min_ratio=0.0)
+    np.testing.assert_array_equal(ungated, [0, 0, 2, 2, 1, 1])
+    # the default gate keeps the pivot out: the blade keeps its part, the pivot keeps its (empty) GeoFusion faces
+    gated = soft_anchor_prompts(geofusion, WEAK_PROMPT_SCORES, WEAK_PROMPT_LEVEL, np.ones(6))
+    np.testing.assert_array_equal(gated, geofusion)
+
+
+def test_soft_anchor_probabilities_are_per_face_distributions_behind_the_default_labels():
+    probabilities = soft_anchor_probabilities(WEAK_PROMPT_SCORES, WEAK_PROMPT_LEVEL, np.ones(6))
+    np.testing.assert_allclose(probabilities.sum(axis=1), 1.0)
+    # the handle's anchored part A: share 0.7 plus the full prior 1, normalised by 2
+    np.testing.assert_allclose(probabilities[0], [0.85, 0.145, 0.005])
+    refined, labels = refine_labels(SCORES, PARTITIONS, AREAS)
+    np.testing.assert_array_equal(soft_anchor_probabilities(refined, PARTITIONS, AREAS).argmax(axis=1), labels)
+    silent = soft_anchor_probabilities(np.zeros((2, 2)), [Partition(0.1, np.array([0, 1]))], np.ones(2))
+    np.testing.assert_array_equal(silent, np.zeros((2, 2)))  # no vote, no prior: no distribution
 
 
 def test_anchoring_modes():
