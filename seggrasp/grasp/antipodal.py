@@ -4,7 +4,9 @@
    normals.
 2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
-4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
+4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z); with a table plane, a
+   pair tilted a little from the table also gets a straight-down pose closing level with the table across its
+   middle (`_level_poses`: a round handle lying flat is held across its widest section).
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
    from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
@@ -70,6 +72,11 @@ class AntipodalConfig:
     default_mass: float = 0.3
     grip_force: float = DEFAULT_GRIP_FORCE
     torsion_radius: float = 0.0055
+    # the contact patch: surface within `patch_depth` of where a pad first touches (its rubber gives that much);
+    # a patch smaller than a line across the pad (a point on a rounded end, an edge) holds proportionally less
+    # twist, down to a compressed rubber disc of `point_contact_radius`
+    patch_depth: float = 0.001
+    point_contact_radius: float = 0.001
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
@@ -87,8 +94,14 @@ class AntipodalConfig:
 
     @property
     def torsion_limit(self) -> float:
-        """Gravity torque (N m) about the grasp axis the pads' friction holds."""
+        """Gravity torque (N m) about the grasp axis the pads' friction holds with a line contact across them."""
         return 2.0 * self.friction_coefficient * self.grip_force * self.torsion_radius
+
+    def torsion_limits(self, patch_radius: np.ndarray) -> np.ndarray:
+        """Gravity torque (N m) the pads hold per grasp given its contact patch radius (m): `torsion_limit` for a
+        line across the pad or more, down to `point_contact_radius`'s share of it for a point contact."""
+        radius = np.clip(np.asarray(patch_radius, dtype=np.float64), self.point_contact_radius, self.torsion_radius)
+        return self.torsion_limit * radius / self.torsion_radius
 
 
 class AntipodalSampler:
@@ -129,6 +142,9 @@ class AntipodalSampler:
 
         axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
+        if plane is not None:
+            level, level_pairs = _level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
+            axis_poses, pair_of = np.concatenate([axis_poses, level]), np.concatenate([pair_of, level_pairs])
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
         cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
@@ -141,13 +157,13 @@ class AntipodalSampler:
         poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
-        widths = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud)
+        widths, patch = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud)
         fits = widths <= self.gripper.max_opening - cfg.width_margin  # the footprint may be wider than the stroke
-        poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
+        poses, contacts, widths, patch = poses[fits], contacts[fits], widths[fits], patch[fits]
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
             return GraspSet.empty()
-        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass)
+        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass, patch)
         grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
         if cfg.max_grasps is not None:
             grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
@@ -197,10 +213,11 @@ class AntipodalSampler:
 
     def _score(
         self, mesh: trimesh.Trimesh, poses: np.ndarray, com: np.ndarray, antipodality: np.ndarray,
-        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None,
+        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None, patch: np.ndarray,
     ) -> np.ndarray:
         """Grasp score: antipodality, closeness to the centre of mass, shallow contact depth, a top-down approach, and
-        a gravity torque the pads can hold (grasps whose torque exceeds the limit rank after all others)."""
+        a gravity torque the pads can hold with their contact patch (`torsion_limits`; grasps whose torque exceeds
+        the limit rank after all others)."""
         cfg = self.config
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
         closeness = 1.0 - np.clip(np.linalg.norm(poses[:, :3, 3] - com, axis=1) / radius, 0.0, 1.0)
@@ -209,21 +226,26 @@ class AntipodalSampler:
         if plane is not None:
             score += cfg.weight_top_down * np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
             torque = gravity_torque(poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
-            score -= cfg.weight_torque * np.minimum(torque / cfg.torsion_limit, 1.0)
-            score -= 2.0 * (torque > cfg.torsion_limit)  # ranks after every grasp whose torque the pads hold
+            limit = cfg.torsion_limits(patch)
+            score -= cfg.weight_torque * np.minimum(torque / limit, 1.0)
+            score -= 2.0 * (torque > limit)  # ranks after every grasp whose torque the pads hold
         return score
 
     def _apply_footprint(
         self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray
-    ) -> np.ndarray:
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
         contact pair, the pads stop on those: move the contacts there, centre the pose between them and return
-        the widths they give (poses and contacts are updated in place)."""
+        the widths they give and the pads' contact patch radius (`_sweep`; poses and contacts are updated in
+        place)."""
         cfg = self.config
+        patch = np.zeros(len(poses))
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
-            span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
-                                                    -cfg.pad_half_length, cfg.pad_half_length)
+            span, x_low, x_high, low, high, patch[sl] = _sweep(
+                poses[sl], openings[sl], cloud, cfg.pad_half_width, -cfg.pad_half_length, cfg.pad_half_length,
+                cfg.patch_depth,
+            )
             wider = span > widths[sl] + 2.0 * cfg.footprint_tolerance
             index = np.flatnonzero(wider) + start
             if len(index):
@@ -231,7 +253,7 @@ class AntipodalSampler:
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
-        return widths
+        return widths, patch
 
     def _collision_free(
         self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
@@ -286,10 +308,14 @@ def _box_corners(boxes: np.ndarray) -> np.ndarray:
 
 
 def _sweep(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float,
+    patch_depth: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cloud points the closing pads sweep (|y| <= half_width, z_low <= z <= z_high, |x| within half the
-    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices)."""
+    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices; the
+    contact patch radius, the smaller over the two pads of the mean distance in the pad plane of the swept points
+    within `patch_depth` of that pad's first touch from their centroid: about 0 for a point contact, a quarter of
+    the length of a line contact)."""
     rotations = poses[:, :3, :3]
     local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
     inside = (
@@ -302,7 +328,20 @@ def _sweep(
     rows = np.arange(len(local))
     x_low, x_high = x[rows, low], x[rows, high]
     span = np.where(inside.any(axis=1), x_high - x_low, 0.0)
-    return span, x_low, x_high, low, high
+    radius = np.minimum(
+        _patch_radius(local, inside & (x <= x_low[:, None] + patch_depth)),
+        _patch_radius(local, inside & (x >= x_high[:, None] - patch_depth)),
+    )
+    return span, x_low, x_high, low, high, radius
+
+
+def _patch_radius(local: np.ndarray, patch: np.ndarray) -> np.ndarray:
+    """Per pose, the mean distance in the pad plane (y, z) of the `patch` points from their centroid (0 if none)."""
+    count = np.maximum(patch.sum(axis=1), 1)[:, None]
+    yz = local[..., 1:]
+    centroid = np.einsum("gm,gmk->gk", patch, yz) / count
+    distance = np.linalg.norm(yz - centroid[:, None, :], axis=2)
+    return (patch * distance).sum(axis=1) / count[:, 0]
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
@@ -355,6 +394,25 @@ def _poses_around_axes(
     poses[..., :3, 3] = (0.5 * (p + q))[:, None, :]
     poses[..., 3, 3] = 1.0
     return poses.reshape(-1, 4, 4)
+
+
+def _level_poses(
+    p: np.ndarray, q: np.ndarray, axis: np.ndarray, down: np.ndarray, max_tilt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-down poses closing level with the table across the middle of each pair tilted by 1e-3 to `max_tilt`
+    rad from it, and the indices of those pairs. On a round part lying flat (a handle) the pairs through its axis
+    tilt every way, and the pads coming straight down close on its widest section, the one line across the pads
+    that holds against twist; the footprint (`_apply_footprint`) then finds those contacts."""
+    sine = axis @ down
+    pairs = np.flatnonzero((np.abs(sine) > 1e-3) & (np.abs(sine) <= np.sin(max_tilt)))
+    x = axis[pairs] - sine[pairs, None] * down[None]
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    z = np.broadcast_to(down, x.shape)
+    poses = np.zeros((len(pairs), 4, 4))
+    poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2] = x, np.cross(z, x), z
+    poses[:, :3, 3] = 0.5 * (p[pairs] + q[pairs])
+    poses[:, 3, 3] = 1.0
+    return poses, pairs
 
 
 def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> np.ndarray:
