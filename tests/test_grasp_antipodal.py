@@ -185,3 +185,27 @@ def test_graspset_transform_and_subset() -> None:
     assert len(top) == 3 and np.array_equal(top.scores, g.scores[:3])
     with pytest.raises(ValueError, match="disagree"):
         GraspSet(np.zeros((2, 4, 4)), np.zeros(3), np.zeros(2), np.zeros((2, 2, 3)))
+
+
+def _level_handle_grasps(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Top-down grasps on a handle lying along y: closing level (x within 5 deg of the table) across it."""
+    g = AntipodalSampler(AntipodalConfig(friction_coefficient=MU)).generate(mesh, seed=0, table_plane=TABLE)
+    return g.subset(np.flatnonzero((np.abs(g.poses[:, 2, 0]) < np.sin(np.deg2rad(5.0))) & (g.poses[:, 2, 2] < -0.99)))
+
+
+def test_a_round_handle_lying_flat_is_grasped_level_across_its_widest_section() -> None:
+    # a 30 mm round handle lying on the table: its antipodal pairs run through the axis at every tilt, and only the
+    # pads closing level with the table meet it along a line across the pads (the contact that resists twist)
+    handle = _on_table(trimesh.creation.cylinder(radius=0.015, height=0.12, sections=24))
+    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0], [0.0, 0.0, 0.015]))
+    level = _level_handle_grasps(handle)
+    assert len(level) >= 20
+    assert np.all(np.abs(level.widths - 0.03) < 0.0015)
+    assert np.all(np.abs(level.contacts[..., 2] - 0.015) < 0.003)  # at the axis height, the widest section
+
+
+def test_a_point_contact_holds_less_twist_than_a_line_across_the_pads() -> None:
+    config = AntipodalConfig(friction_coefficient=MU)
+    line, point = config.torsion_limits(np.array([0.022 / 4, 0.0]))
+    assert line == pytest.approx(config.torsion_limit)
+    assert point == pytest.approx(config.torsion_limit * config.point_contact_radius / config.torsion_radius)

@@ -142,9 +142,11 @@ class AntipodalSampler:
 
         axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
+        is_level = np.zeros(len(axis_poses), dtype=bool)
         if plane is not None:
             level, level_pairs = _level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
             axis_poses, pair_of = np.concatenate([axis_poses, level]), np.concatenate([pair_of, level_pairs])
+            is_level = np.r_[is_level, np.ones(len(level), dtype=bool)]
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
         cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
@@ -157,7 +159,7 @@ class AntipodalSampler:
         poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
-        widths, patch = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud)
+        widths, patch = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud, is_level[free])
         fits = widths <= self.gripper.max_opening - cfg.width_margin  # the footprint may be wider than the stroke
         poses, contacts, widths, patch = poses[fits], contacts[fits], widths[fits], patch[fits]
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
@@ -232,12 +234,13 @@ class AntipodalSampler:
         return score
 
     def _apply_footprint(
-        self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray
+        self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
+        from_sweep: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
-        contact pair, the pads stop on those: move the contacts there, centre the pose between them and return
-        the widths they give and the pads' contact patch radius (`_sweep`; poses and contacts are updated in
-        place)."""
+        contact pair, or for the poses `from_sweep` (not aimed at their pair's contacts) always, the pads stop on
+        the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
+        they give and the pads' contact patch radius (`_sweep`; poses and contacts are updated in place)."""
         cfg = self.config
         patch = np.zeros(len(poses))
         for start in range(0, len(poses), COLLISION_CHUNK):
@@ -246,7 +249,7 @@ class AntipodalSampler:
                 poses[sl], openings[sl], cloud, cfg.pad_half_width, -cfg.pad_half_length, cfg.pad_half_length,
                 cfg.patch_depth,
             )
-            wider = span > widths[sl] + 2.0 * cfg.footprint_tolerance
+            wider = (span > widths[sl] + 2.0 * cfg.footprint_tolerance) | (from_sweep[sl] & (span > 0.0))
             index = np.flatnonzero(wider) + start
             if len(index):
                 poses[index, :3, 3] += 0.5 * (x_high[wider] + x_low[wider])[:, None] * poses[index, :3, 0]
