@@ -204,8 +204,18 @@ def test_a_round_handle_lying_flat_is_grasped_level_across_its_widest_section() 
     assert np.all(np.abs(level.contacts[..., 2] - 0.015) < 0.003)  # at the axis height, the widest section
 
 
-def test_a_point_contact_holds_less_twist_than_a_line_across_the_pads() -> None:
-    config = AntipodalConfig(friction_coefficient=MU)
-    line, point = config.torsion_limits(np.array([0.022 / 4, 0.0]))
-    assert line == pytest.approx(config.torsion_limit)
-    assert point == pytest.approx(config.torsion_limit * config.point_contact_radius / config.torsion_radius)
+
+def test_level_grasps_do_not_pinch_the_edges_of_a_slanted_wall() -> None:
+    # a 3 mm wall leaning 20 deg (a pan's flared side): pads closing level with the table would touch only its
+    # edges (a point each), so level poses are kept only where the surface faces the pads
+    wall = trimesh.creation.box((0.003, 0.06, 0.04))
+    wall.apply_transform(trimesh.transformations.rotation_matrix(np.deg2rad(20.0), [0.0, 1.0, 0.0]))
+    wall = _on_table(wall)
+
+    def level(config: AntipodalConfig) -> int:
+        g = AntipodalSampler(config).generate(wall, seed=0, table_plane=TABLE)
+        across = np.abs(g.poses[:, 0, 0]) > 0.999  # closing level across the wall's thickness (x), not its length
+        return int((across & (g.poses[:, 2, 2] < -0.999)).sum())
+
+    assert level(AntipodalConfig(friction_coefficient=MU, level_facing_deg=180.0)) > 0  # without the check
+    assert level(AntipodalConfig(friction_coefficient=MU)) == 0

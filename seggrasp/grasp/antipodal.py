@@ -6,14 +6,14 @@
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z); with a table plane, a
    pair tilted a little from the table also gets a straight-down pose closing level with the table across its
-   middle (`_level_poses`: a round handle lying flat is held across its widest section).
+   middle (`_level_poses`: a round handle lying flat is held across its widest section, with a line contact).
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
    from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
    below an optional table plane.
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
-   between them.
+   between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
 7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
    cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
    grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
@@ -65,6 +65,9 @@ class AntipodalConfig:
     pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
+    # a level pose (`_level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
+    # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
+    level_facing_deg: float = 18.0
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
     # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
     # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
@@ -72,11 +75,6 @@ class AntipodalConfig:
     default_mass: float = 0.3
     grip_force: float = DEFAULT_GRIP_FORCE
     torsion_radius: float = 0.0055
-    # the contact patch: surface within `patch_depth` of where a pad first touches (its rubber gives that much);
-    # a patch smaller than a line across the pad (a point on a rounded end, an edge) holds proportionally less
-    # twist, down to a compressed rubber disc of `point_contact_radius`
-    patch_depth: float = 0.001
-    point_contact_radius: float = 0.001
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
@@ -94,14 +92,8 @@ class AntipodalConfig:
 
     @property
     def torsion_limit(self) -> float:
-        """Gravity torque (N m) about the grasp axis the pads' friction holds with a line contact across them."""
+        """Gravity torque (N m) about the grasp axis the pads' friction holds."""
         return 2.0 * self.friction_coefficient * self.grip_force * self.torsion_radius
-
-    def torsion_limits(self, patch_radius: np.ndarray) -> np.ndarray:
-        """Gravity torque (N m) the pads hold per grasp given its contact patch radius (m): `torsion_limit` for a
-        line across the pad or more, down to `point_contact_radius`'s share of it for a point contact."""
-        radius = np.clip(np.asarray(patch_radius, dtype=np.float64), self.point_contact_radius, self.torsion_radius)
-        return self.torsion_limit * radius / self.torsion_radius
 
 
 class AntipodalSampler:
@@ -149,7 +141,7 @@ class AntipodalSampler:
             is_level = np.r_[is_level, np.ones(len(level), dtype=bool)]
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
-        cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
+        cloud, cloud_normals = _collision_cloud(mesh, normals_sign, cfg, int(rng.integers(2**31)))
         depth_index = self._deepest_free_depths(axis_poses, openings, widths, plane, cloud)
         free = depth_index >= 0
         if not free.any():
@@ -159,13 +151,16 @@ class AntipodalSampler:
         poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
-        widths, patch = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud, is_level[free])
-        fits = widths <= self.gripper.max_opening - cfg.width_margin  # the footprint may be wider than the stroke
-        poses, contacts, widths, patch = poses[fits], contacts[fits], widths[fits], patch[fits]
+        widths, facing = self._apply_footprint(
+            poses, contacts, widths[free].copy(), openings[free], cloud, cloud_normals, is_level[free]
+        )
+        # the footprint may be wider than the stroke; a level pose must meet surface facing its pads
+        fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~is_level[free])
+        poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
             return GraspSet.empty()
-        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass, patch)
+        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass)
         grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
         if cfg.max_grasps is not None:
             grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
@@ -215,11 +210,10 @@ class AntipodalSampler:
 
     def _score(
         self, mesh: trimesh.Trimesh, poses: np.ndarray, com: np.ndarray, antipodality: np.ndarray,
-        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None, patch: np.ndarray,
+        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None,
     ) -> np.ndarray:
         """Grasp score: antipodality, closeness to the centre of mass, shallow contact depth, a top-down approach, and
-        a gravity torque the pads can hold with their contact patch (`torsion_limits`; grasps whose torque exceeds
-        the limit rank after all others)."""
+        a gravity torque the pads can hold (grasps whose torque exceeds the limit rank after all others)."""
         cfg = self.config
         radius = max(float(np.linalg.norm(mesh.vertices - com, axis=1).max()), 1e-9)
         closeness = 1.0 - np.clip(np.linalg.norm(poses[:, :3, 3] - com, axis=1) / radius, 0.0, 1.0)
@@ -228,27 +222,29 @@ class AntipodalSampler:
         if plane is not None:
             score += cfg.weight_top_down * np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
             torque = gravity_torque(poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
-            limit = cfg.torsion_limits(patch)
-            score -= cfg.weight_torque * np.minimum(torque / limit, 1.0)
-            score -= 2.0 * (torque > limit)  # ranks after every grasp whose torque the pads hold
+            score -= cfg.weight_torque * np.minimum(torque / cfg.torsion_limit, 1.0)
+            score -= 2.0 * (torque > cfg.torsion_limit)  # ranks after every grasp whose torque the pads hold
         return score
 
     def _apply_footprint(
         self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
-        from_sweep: np.ndarray,
+        cloud_normals: np.ndarray, from_sweep: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
         contact pair, or for the poses `from_sweep` (not aimed at their pair's contacts) always, the pads stop on
         the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
-        they give and the pads' contact patch radius (`_sweep`; poses and contacts are updated in place)."""
+        they give and whether the surface at both outermost points faces the pads within `level_facing_deg` (poses
+        and contacts are updated in place)."""
         cfg = self.config
-        patch = np.zeros(len(poses))
+        facing = np.zeros(len(poses), dtype=bool)
+        cos_cone = np.cos(np.deg2rad(cfg.level_facing_deg))
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
-            span, x_low, x_high, low, high, patch[sl] = _sweep(
-                poses[sl], openings[sl], cloud, cfg.pad_half_width, -cfg.pad_half_length, cfg.pad_half_length,
-                cfg.patch_depth,
-            )
+            span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
+                                                    -cfg.pad_half_length, cfg.pad_half_length)
+            x_axis = poses[sl, :3, 0]
+            facing[sl] = (np.einsum("ij,ij->i", cloud_normals[low], x_axis) <= -cos_cone) & (
+                np.einsum("ij,ij->i", cloud_normals[high], x_axis) >= cos_cone)
             wider = (span > widths[sl] + 2.0 * cfg.footprint_tolerance) | (from_sweep[sl] & (span > 0.0))
             index = np.flatnonzero(wider) + start
             if len(index):
@@ -256,7 +252,7 @@ class AntipodalSampler:
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
-        return widths, patch
+        return widths, facing
 
     def _collision_free(
         self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
@@ -311,14 +307,10 @@ def _box_corners(boxes: np.ndarray) -> np.ndarray:
 
 
 def _sweep(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float,
-    patch_depth: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cloud points the closing pads sweep (|y| <= half_width, z_low <= z <= z_high, |x| within half the
-    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices; the
-    contact patch radius, the smaller over the two pads of the mean distance in the pad plane of the swept points
-    within `patch_depth` of that pad's first touch from their centroid: about 0 for a point contact, a quarter of
-    the length of a line contact)."""
+    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices)."""
     rotations = poses[:, :3, :3]
     local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
     inside = (
@@ -331,20 +323,7 @@ def _sweep(
     rows = np.arange(len(local))
     x_low, x_high = x[rows, low], x[rows, high]
     span = np.where(inside.any(axis=1), x_high - x_low, 0.0)
-    radius = np.minimum(
-        _patch_radius(local, inside & (x <= x_low[:, None] + patch_depth)),
-        _patch_radius(local, inside & (x >= x_high[:, None] - patch_depth)),
-    )
-    return span, x_low, x_high, low, high, radius
-
-
-def _patch_radius(local: np.ndarray, patch: np.ndarray) -> np.ndarray:
-    """Per pose, the mean distance in the pad plane (y, z) of the `patch` points from their centroid (0 if none)."""
-    count = np.maximum(patch.sum(axis=1), 1)[:, None]
-    yz = local[..., 1:]
-    centroid = np.einsum("gm,gmk->gk", patch, yz) / count
-    distance = np.linalg.norm(yz - centroid[:, None, :], axis=2)
-    return (patch * distance).sum(axis=1) / count[:, 0]
+    return span, x_low, x_high, low, high
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
@@ -418,11 +397,14 @@ def _level_poses(
     return poses, pairs
 
 
-def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> np.ndarray:
-    """Surface points dense enough that a finger cannot sit inside the object without containing some."""
+def _collision_cloud(
+    mesh: trimesh.Trimesh, normals_sign: float, cfg: AntipodalConfig, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points dense enough that a finger cannot sit inside the object without containing some, and their
+    outward face normals."""
     count = int(np.clip(mesh.area / cfg.collision_point_spacing**2, cfg.min_collision_points, cfg.max_collision_points))
-    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
-    return points
+    points, faces = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return points, normals_sign * np.asarray(mesh.face_normals)[faces]
 
 
 def _surface_samples(
