@@ -185,3 +185,37 @@ def test_graspset_transform_and_subset() -> None:
     assert len(top) == 3 and np.array_equal(top.scores, g.scores[:3])
     with pytest.raises(ValueError, match="disagree"):
         GraspSet(np.zeros((2, 4, 4)), np.zeros(3), np.zeros(2), np.zeros((2, 2, 3)))
+
+
+def _level_handle_grasps(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Top-down grasps on a handle lying along y: closing level (x within 5 deg of the table) across it."""
+    g = AntipodalSampler(AntipodalConfig(friction_coefficient=MU)).generate(mesh, seed=0, table_plane=TABLE)
+    return g.subset(np.flatnonzero((np.abs(g.poses[:, 2, 0]) < np.sin(np.deg2rad(5.0))) & (g.poses[:, 2, 2] < -0.99)))
+
+
+def test_a_round_handle_lying_flat_is_grasped_level_across_its_widest_section() -> None:
+    # a 30 mm round handle lying on the table: its antipodal pairs run through the axis at every tilt, and only the
+    # pads closing level with the table meet it along a line across the pads (the contact that resists twist)
+    handle = _on_table(trimesh.creation.cylinder(radius=0.015, height=0.12, sections=24))
+    handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0], [0.0, 0.0, 0.015]))
+    level = _level_handle_grasps(handle)
+    assert len(level) >= 20
+    assert np.all(np.abs(level.widths - 0.03) < 0.0015)
+    assert np.all(np.abs(level.contacts[..., 2] - 0.015) < 0.003)  # at the axis height, the widest section
+
+
+
+def test_level_grasps_do_not_pinch_the_edges_of_a_slanted_wall() -> None:
+    # a 3 mm wall leaning 20 deg (a pan's flared side): pads closing level with the table would touch only its
+    # edges (a point each), so level poses are kept only where the surface faces the pads
+    wall = trimesh.creation.box((0.003, 0.06, 0.04))
+    wall.apply_transform(trimesh.transformations.rotation_matrix(np.deg2rad(20.0), [0.0, 1.0, 0.0]))
+    wall = _on_table(wall)
+
+    def level(config: AntipodalConfig) -> int:
+        g = AntipodalSampler(config).generate(wall, seed=0, table_plane=TABLE)
+        across = np.abs(g.poses[:, 0, 0]) > 0.999  # closing level across the wall's thickness (x), not its length
+        return int((across & (g.poses[:, 2, 2] < -0.999)).sum())
+
+    assert level(AntipodalConfig(friction_coefficient=MU, level_facing_deg=180.0)) > 0  # without the check
+    assert level(AntipodalConfig(friction_coefficient=MU)) == 0

@@ -169,6 +169,19 @@ def test_two_cells_coexist_with_their_own_clients(box):
         assert first.object_mesh()[1][2, 3] > 0.18
 
 
+def test_the_floating_gripper_lifts_a_bar_gripped_at_its_centre(tmp_path):
+    # a free gripper base dragged by a fixed constraint let the pads' grip fade during the lift: this 0.5 kg bar,
+    # gripped across its middle at 100 N, dropped; on the floating gripper's gantry it is held as on the arm
+    bar = primitive_object("box", (0.30, 0.03, 0.03), tmp_path, mass=0.5, friction=0.5, object_id="bar")
+    with SimCell([bar], embodiment="floating", seed=0, image_size=IMAGE) as cell:
+        _, T_world_obj = cell.object_mesh()
+        T = top_down_grasp(T_world_obj, 0.027)
+        T[:3, 0] = T_world_obj[:3, 1]  # close across the bar
+        T[:3, 1] = np.cross(T[:3, 2], T[:3, 0])
+        outcome = cell.execute(T, 0.03)
+        assert outcome.lifted, outcome.message
+
+
 @pytest.mark.parametrize("mass, holds", [(0.5, True), (0.9, False)])
 def test_a_bar_held_off_its_centre_of_mass_turns_only_beyond_the_pads_torsional_friction(tmp_path, mass, holds):
     # a 30 cm bar (friction 0.5) lying flat, grasped 12 cm from its middle at 100 N: the pads' rubber patches hold

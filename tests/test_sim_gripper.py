@@ -62,8 +62,9 @@ def test_closing_at_the_maximum_force_keeps_the_width(kind, size_mm, tmp_path):
     assert penetration < 0.0015
 
 
-@pytest.mark.xfail(strict=True, reason="at 235 N the light linkage still sinks 0.6-1.4 mm into 10-30 mm objects")
 def test_closing_at_the_maximum_force_stays_on_the_surface(tmp_path):
+    # with the floating gripper's base on a fixed constraint the light linkage sank 1.2-1.4 mm into 10 mm objects at
+    # 235 N; on its gantry (a fixed-base chain, as the arm) it stays within 0.5 mm
     assert max(_close_on(kind, 10, GRIP_FORCE_RANGE[1], tmp_path)[1] for kind in ("box", "cylinder")) < 0.0005
 
 
@@ -95,3 +96,29 @@ def test_a_light_object_gets_the_solver_iterations_it_needs(tmp_path):
         finally:
             world.close()
     assert settings.light_object_iterations > settings.solver_iterations
+
+
+def test_the_floating_gripper_lifts_a_claw_hammer_by_its_handle():
+    """Issue 12: with its base dragged by a fixed constraint the floating gripper dropped the twin's claw hammer
+    from every top-3 grasp at 100 solver iterations (the pads' grip faded during the lift); the arm held them."""
+    from seggrasp.episode import table_plane_in_object_frame
+    from seggrasp.grasp.antipodal import AntipodalSampler
+    from seggrasp.objects import load_asset_set
+
+    try:
+        objects = [o for o in load_asset_set("hammer") if o.object_id == "hammer_claw"]
+    except (FileNotFoundError, ValueError) as exc:  # absent, or being regenerated (its own tests check it)
+        pytest.skip(f"twin assets unavailable: {exc}")
+    with SimCell(objects, embodiment="floating", seed=0, image_size=(64, 48)) as cell:
+        cell.reset(seed=10884, object_id="hammer_claw")  # the quick CI profile's scene
+        mesh, T_world_obj = cell.object_mesh()
+        model = cell.current_object
+        grasps = AntipodalSampler().generate(
+            mesh, seed=0, table_plane=table_plane_in_object_frame(mesh, T_world_obj),
+            center_of_mass=model.center_of_mass, mass=model.mass,
+        ).transformed(T_world_obj)
+        outcomes = []
+        for index in range(2):
+            cell.reset(seed=10884, object_id="hammer_claw")
+            outcomes.append(cell.execute(grasps.poses[index], grasps.widths[index]))
+        assert all(outcome.lifted for outcome in outcomes), [outcome.message for outcome in outcomes]

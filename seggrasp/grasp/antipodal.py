@@ -4,14 +4,16 @@
    normals.
 2. Cast a ray from each point along its inward normal; the first hit is the opposite contact.
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
-4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z).
+4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z); with a table plane, a
+   pair tilted a little from the table also gets a straight-down pose closing level with the table across its
+   middle (`_level_poses`: a round handle lying flat is held across its widest section, with a line contact).
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
    from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
    below an optional table plane.
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
-   between them.
+   between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
 7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
    cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
    grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
@@ -63,6 +65,9 @@ class AntipodalConfig:
     pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
+    # a level pose (`_level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
+    # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
+    level_facing_deg: float = 18.0
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
     # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
     # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
@@ -129,9 +134,14 @@ class AntipodalSampler:
 
         axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
+        is_level = np.zeros(len(axis_poses), dtype=bool)
+        if plane is not None:
+            level, level_pairs = _level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
+            axis_poses, pair_of = np.concatenate([axis_poses, level]), np.concatenate([pair_of, level_pairs])
+            is_level = np.r_[is_level, np.ones(len(level), dtype=bool)]
         widths = width[pair_of]
         openings = self.gripper.pre_grasp_opening(widths)
-        cloud = _collision_cloud(mesh, cfg, int(rng.integers(2**31)))
+        cloud, cloud_normals = _collision_cloud(mesh, normals_sign, cfg, int(rng.integers(2**31)))
         depth_index = self._deepest_free_depths(axis_poses, openings, widths, plane, cloud)
         free = depth_index >= 0
         if not free.any():
@@ -141,8 +151,11 @@ class AntipodalSampler:
         poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
-        widths = self._apply_footprint(poses, contacts, widths[free].copy(), openings[free], cloud)
-        fits = widths <= self.gripper.max_opening - cfg.width_margin  # the footprint may be wider than the stroke
+        widths, facing = self._apply_footprint(
+            poses, contacts, widths[free].copy(), openings[free], cloud, cloud_normals, is_level[free]
+        )
+        # the footprint may be wider than the stroke; a level pose must meet surface facing its pads
+        fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~is_level[free])
         poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
@@ -214,24 +227,32 @@ class AntipodalSampler:
         return score
 
     def _apply_footprint(
-        self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray
-    ) -> np.ndarray:
+        self, poses: np.ndarray, contacts: np.ndarray, widths: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
+        cloud_normals: np.ndarray, from_sweep: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
-        contact pair, the pads stop on those: move the contacts there, centre the pose between them and return
-        the widths they give (poses and contacts are updated in place)."""
+        contact pair, or for the poses `from_sweep` (not aimed at their pair's contacts) always, the pads stop on
+        the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
+        they give and whether the surface at both outermost points faces the pads within `level_facing_deg` (poses
+        and contacts are updated in place)."""
         cfg = self.config
+        facing = np.zeros(len(poses), dtype=bool)
+        cos_cone = np.cos(np.deg2rad(cfg.level_facing_deg))
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
             span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
                                                     -cfg.pad_half_length, cfg.pad_half_length)
-            wider = span > widths[sl] + 2.0 * cfg.footprint_tolerance
+            x_axis = poses[sl, :3, 0]
+            facing[sl] = (np.einsum("ij,ij->i", cloud_normals[low], x_axis) <= -cos_cone) & (
+                np.einsum("ij,ij->i", cloud_normals[high], x_axis) >= cos_cone)
+            wider = (span > widths[sl] + 2.0 * cfg.footprint_tolerance) | (from_sweep[sl] & (span > 0.0))
             index = np.flatnonzero(wider) + start
             if len(index):
                 poses[index, :3, 3] += 0.5 * (x_high[wider] + x_low[wider])[:, None] * poses[index, :3, 0]
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
-        return widths
+        return widths, facing
 
     def _collision_free(
         self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
@@ -357,11 +378,33 @@ def _poses_around_axes(
     return poses.reshape(-1, 4, 4)
 
 
-def _collision_cloud(mesh: trimesh.Trimesh, cfg: AntipodalConfig, seed: int) -> np.ndarray:
-    """Surface points dense enough that a finger cannot sit inside the object without containing some."""
+def _level_poses(
+    p: np.ndarray, q: np.ndarray, axis: np.ndarray, down: np.ndarray, max_tilt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-down poses closing level with the table across the middle of each pair tilted by 1e-3 to `max_tilt`
+    rad from it, and the indices of those pairs. On a round part lying flat (a handle) the pairs through its axis
+    tilt every way, and the pads coming straight down close on its widest section, the one line across the pads
+    that holds against twist; the footprint (`_apply_footprint`) then finds those contacts."""
+    sine = axis @ down
+    pairs = np.flatnonzero((np.abs(sine) > 1e-3) & (np.abs(sine) <= np.sin(max_tilt)))
+    x = axis[pairs] - sine[pairs, None] * down[None]
+    x /= np.linalg.norm(x, axis=1, keepdims=True)
+    z = np.broadcast_to(down, x.shape)
+    poses = np.zeros((len(pairs), 4, 4))
+    poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2] = x, np.cross(z, x), z
+    poses[:, :3, 3] = 0.5 * (p[pairs] + q[pairs])
+    poses[:, 3, 3] = 1.0
+    return poses, pairs
+
+
+def _collision_cloud(
+    mesh: trimesh.Trimesh, normals_sign: float, cfg: AntipodalConfig, seed: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Surface points dense enough that a finger cannot sit inside the object without containing some, and their
+    outward face normals."""
     count = int(np.clip(mesh.area / cfg.collision_point_spacing**2, cfg.min_collision_points, cfg.max_collision_points))
-    points, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
-    return points
+    points, faces = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    return points, normals_sign * np.asarray(mesh.face_normals)[faces]
 
 
 def _surface_samples(
