@@ -79,7 +79,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: --rounds must be at least 1", file=sys.stderr)
         return 2
     times, loads = measure(args.profile.split(), args.rounds)
-    command = ("nice " if os.nice(0) > 0 else "") + " ".join(["python -m sim.evaluate.bench", *(argv if argv is not None else sys.argv[1:])])
+    arguments = argv if argv is not None else sys.argv[1:]
+    command = ("nice " if os.nice(0) > 0 else "") + " ".join(["python -m sim.evaluate.bench", *arguments])
     text = report(times, loads, command)
     print(text)
     if args.write:

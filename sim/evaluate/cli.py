@@ -39,7 +39,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--weights", help="local weights directory (or hub id) for a real detector")
     parser.add_argument("--embodiment", choices=("arm", "floating"), default="arm")
     parser.add_argument("--workers", type=int, default=1,
-                        help="(object, seed) tasks evaluated in parallel (local processes, or a local Ray instance's CPUs)")
+                        help="(object, seed) tasks run in parallel (local processes, or a local Ray instance's CPUs)")
     parser.add_argument("--seed", type=int, default=None, help="the run seed (default 0); --seeds for several")
     parser.add_argument("--seeds", help="several run seeds, e.g. 0-4 or 0,3,7: each redraws the detector's errors, "
                         "the scene poses and the grasps; the report gives 95%% intervals over objects and seeds")
