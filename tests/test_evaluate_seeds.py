@@ -70,3 +70,45 @@ def test_each_seed_redraws_the_scene_and_resume_completes_per_object_seed_and_me
     assert set(interval) >= {"mean", "ci_low", "ci_high", "per_seed"}
     assert set(interval["per_seed"]) == {"0", "1", "2"} and interval["mean"] == 1.0
     assert "seeds: 0-2" in (out / "summary.md").read_text()
+
+
+def test_a_folder_written_before_seeds_resumes_as_its_one_seed(tmp_path) -> None:
+    """run.json with one `seed` and records without a `seed` field (CoACD then took the run seed)."""
+    from sim.evaluate.config import RunConfig
+    from sim.evaluate.records import prepare_out, trial_key
+
+    out = tmp_path / "old"
+    out.mkdir()
+    old = {"methods": ["oracle"], "objects": ["mug_classic"], "detector": "typical", "weights": None,
+           "embodiment": "floating", "seed": 0, "top_k": 1, "backend": "sim", "config": None, "perceive": False,
+           "dry_run": False, "quick": False, "prompts": [], "record": 0}
+    (out / "run.json").write_text(json.dumps(old))
+    record = {"object_id": "mug_classic", "method": "oracle", "prompt": "handle", "rank": 0}
+    assert trial_key(record) == ("mug_classic", 0, "oracle", "handle", 0)
+    config = prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[0], top_k=1), resume=True)
+    assert config.seeds == [0]
+    (out / "run.json").write_text(json.dumps(dict(old, seed=1)))  # decomposed with CoACD seed 1: not the same run
+    with pytest.raises(ValueError, match="decomposition_seed"):
+        prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[1], top_k=1), resume=True)
+
+
+def test_resume_skips_the_object_seed_pairs_the_folder_holds_completely(tmp_path) -> None:
+    from sim.evaluate.config import RunConfig
+    from sim.evaluate.runner import make_tasks
+
+    out = tmp_path / "run"
+    config = RunConfig(["oracle"], ["mug_classic"], seeds=[0, 1], top_k=2)
+    trials = JsonLines(out / "trials.jsonl")
+    trials.extend({"object_id": "mug_classic", "seed": seed, "method": "oracle", "prompt": prompt, "rank": rank}
+                  for seed in (0, 1) for prompt in ("handle", "body") for rank in (0, 1))
+    JsonLines(out / "segmentations.jsonl").extend({"object_id": "mug_classic", "seed": s, "method": "oracle"}
+                                                 for s in (0, 1))
+    lines = trials.path.read_text().splitlines(keepends=True)
+    trials.path.write_text("".join(lines[:-1]))  # seed 1 lacks its last slot
+    tasks, complete = make_tasks(config, out, parallel=False)
+    assert [(t.object_id, t.seed) for t in tasks] == [("mug_classic", 1)] and len(tasks[0].recorded.trials) == 3
+    assert [(c["object_id"], c["seed"], c["new_trials"]) for c in complete] == [("mug_classic", 0, 0)]
+    (out / "segmentations.jsonl").write_text("")  # a missing segmentation makes a pair incomplete too
+    trials.path.write_text("".join(lines))
+    tasks, complete = make_tasks(config, out, parallel=False)
+    assert len(tasks) == 2 and not complete

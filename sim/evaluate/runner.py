@@ -273,23 +273,50 @@ def worker_init() -> None:
         pass
 
 
-def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = False) -> list[ObjectTask]:
+def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
+    """Whether `out` already holds every trial of the object's (one seed) run and, on the twin, every method's
+    segmentation and the threshold curve: then its task has nothing to add."""
+    if config.prompts or config.backend == "real":
+        prompts = list(config.prompts)
+    else:
+        from seggrasp.objects import load_asset
+
+        prompts = list(load_asset(object_id).prompts)
+    have = {(r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
+    if any((m, p, k) not in have for m in config.methods for p in prompts for k in range(config.top_k)):
+        return False
+    if config.backend == "real":
+        return True
+    return set(config.methods) <= recorded.segmented and (recorded.curve or set(config.methods) <= {"oracle"})
+
+
+def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = False) -> tuple[list[ObjectTask], list]:
     """One task per (object, seed), seed by seed (a run stopped early holds whole seeds), with what `out` already
-    holds for it."""
+    holds for it; returns (tasks to run, the statuses of the (object, seed) pairs `out` holds completely)."""
     recorded = recorded_index(out)
-    return [ObjectTask(object_id, seed, config, str(out), recorded(object_id, seed), parallel, collect)
-            for seed in config.seeds for object_id in config.objects]
+    tasks, complete = [], []
+    for seed in config.seeds:
+        for object_id in config.objects:
+            held = recorded(object_id, seed)
+            if is_complete(held, object_id, config.at_seed(seed)):
+                complete.append({"object_id": object_id, "seed": seed, "ok": True, "new_trials": 0, "seconds": 0.0})
+            else:
+                tasks.append(ObjectTask(object_id, seed, config, str(out), held, parallel, collect))
+    return tasks, complete
 
 
 def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status, engine: str = "local",
                      address: str | None = None) -> list[dict]:
-    """Evaluate every (object, seed) of the run, in `workers` local processes or (`engine="ray"`) as Ray tasks;
-    `on_status` sees each task's status and returns it as a crash (a one-item list) or not. Returns the crashes."""
+    """Evaluate every (object, seed) of the run that `out` does not hold completely, in `workers` local processes or
+    (`engine="ray"`) as Ray tasks; `on_status` sees each pair's status and returns it as a crash (a one-item list)
+    or not. Returns the crashes."""
+    tasks, complete = make_tasks(config, out, parallel=engine == "ray" or workers > 1, collect=engine == "ray")
+    for status in complete:
+        on_status(status)
     if engine == "ray":
         from sim.evaluate.ray_engine import evaluate_on_ray  # lazy: ray is only imported when asked for
 
-        return evaluate_on_ray(make_tasks(config, out, parallel=True, collect=True), workers, address, on_status)
-    tasks = make_tasks(config, out, parallel=workers > 1)
+        return evaluate_on_ray(tasks, workers, address, on_status)
     crashes = []
     if workers == 1:
         worker_init()
