@@ -182,7 +182,13 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False, en
         config = prepare_out(out, config, resume)
         started = time.time()
         with tqdm(total=len(config.objects) * len(config.seeds), desc="objects x seeds", unit="task") as bar:
-            crashes = evaluate_objects(config, out, workers, lambda status: _report(status, bar), engine, address)
+            on_status = lambda status: _report(status, bar)  # noqa: E731
+            if engine == "ray":
+                from sim.evaluate.ray_engine import evaluate_on_ray  # lazy: ray is imported only when asked for
+
+                crashes = evaluate_on_ray(config, out, workers, address, on_status)
+            else:
+                crashes = evaluate_objects(config, out, workers, on_status)
         return write_summary(config, out, time.time() - started, crashes), crashes
 
 

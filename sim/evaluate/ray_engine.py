@@ -19,7 +19,7 @@ from pathlib import Path
 
 from sim.evaluate.config import RunConfig
 from sim.evaluate.records import JsonLines
-from sim.evaluate.runner import ObjectTask, Recorded, evaluate_object, worker_init
+from sim.evaluate.runner import ObjectTask, Recorded, evaluate_object, make_tasks, worker_init
 
 LOG = logging.getLogger("sim.evaluate")
 #: Retries of a task whose worker process died (Ray's own retry; an exception inside a task is not retried: it is
@@ -60,17 +60,21 @@ def _connect(workers: int, address: str | None) -> bool:
     return True
 
 
-def evaluate_on_ray(tasks: list[ObjectTask], workers: int, address: str | None, on_status) -> list[dict]:
-    """Run `tasks` as Ray tasks and append each finished task's records to its output folder (driver side);
-    `on_status` sees every status (as with the local engine). Returns the crashes."""
+def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | None, on_status) -> list[dict]:
+    """Evaluate every (object, seed) of the run that `out` does not hold completely as Ray tasks, appending each
+    finished task's records to `out` (driver side); `on_status` sees every status, as with the local engine
+    (runner.evaluate_objects). Returns the crashes."""
     import ray
 
+    tasks, complete = make_tasks(config, out, parallel=True, collect=True)
+    for status in complete:
+        on_status(status)
     if not tasks:
         return []
     started_here = _connect(workers, address)
     try:
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_run_task)
-        config_ref = ray.put(tasks[0].config)
+        config_ref = ray.put(config)
         pending = {remote.remote(config_ref, t.object_id, t.seed, t.recorded, t.out): t for t in tasks}
         crashes = []
         while pending:

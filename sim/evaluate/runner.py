@@ -305,18 +305,12 @@ def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = Fal
     return tasks, complete
 
 
-def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status, engine: str = "local",
-                     address: str | None = None) -> list[dict]:
-    """Evaluate every (object, seed) of the run that `out` does not hold completely, in `workers` local processes or
-    (`engine="ray"`) as Ray tasks; `on_status` sees each pair's status and returns it as a crash (a one-item list)
-    or not. Returns the crashes."""
-    tasks, complete = make_tasks(config, out, parallel=engine == "ray" or workers > 1, collect=engine == "ray")
+def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status) -> list[dict]:
+    """Evaluate every (object, seed) of the run that `out` does not hold completely, in `workers` local processes;
+    `on_status` sees each pair's status and returns it as a crash (a one-item list) or not. Returns the crashes."""
+    tasks, complete = make_tasks(config, out, parallel=workers > 1)
     for status in complete:
         on_status(status)
-    if engine == "ray":
-        from sim.evaluate.ray_engine import evaluate_on_ray  # lazy: ray is only imported when asked for
-
-        return evaluate_on_ray(tasks, workers, address, on_status)
     crashes = []
     if workers == 1:
         worker_init()
