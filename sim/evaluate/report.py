@@ -263,7 +263,9 @@ def markdown_report(summary: dict, header: dict) -> str:
         "# SegGrasp evaluation", "",
         f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
         f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
-        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s", "",
+        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
+        + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"
+           if "expected_trials" in header else ""), "",
     ]
     if any("intervals" in m for m in methods.values()):
         lines += _interval_tables(summary, seeds)
@@ -299,10 +301,10 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
         "detector": config.at_seed(config.seeds[0]).detector_spec().label, "embodiment": config.embodiment,
         "backend": config.backend, "perceive": config.perceive, "seeds": config.seeds,
         "decomposition_seed": config.decomposition_seed, "top_k": config.top_k, "n_objects": len(config.objects),
-        "wall_time_s": wall_time,
+        "wall_time_s": wall_time, "recorded_trials": len(trials), "expected_trials": expected_trials(config),
     }
-    summary["run"] = dict(header, methods=config.methods, objects=config.objects, expected_trials=expected_trials(config),
-                          recorded_trials=len(trials), crashed_objects=sorted({c["object_id"] for c in crashes}),
+    summary["run"] = dict(header, methods=config.methods, objects=config.objects,
+                          crashed_objects=sorted({c["object_id"] for c in crashes}),
                           crashed_tasks=[{"object_id": c["object_id"], "seed": c["seed"]} for c in crashes])
     atomic_write_json(out / "summary.json", summary)
     atomic_write_text(out / "summary.md", markdown_report(summary, header))
