@@ -76,6 +76,7 @@ class EpisodeSettings:
     workspace: object | None = None  # seggrasp.perception.Workspace when perceiving
     decomposition_cache: str | None = None
     decomposition_workers: int | None = None
+    decomposition_seed: int | None = None  # CoACD's seed (None: `seed`); a harness may keep it at the bundled one
 
 
 class VoteStore(Protocol):
@@ -256,12 +257,16 @@ class Episode:
             if coarse is None:
                 detector = self.detector.for_mesh(self.context.prompts, prepared, self.truth_on_mesh)
             self._segmenter = ObjectSegmenter(
-                mesh, self.context.prompts, detector, self.detector.label, seed=self.settings.seed,
+                mesh, self.context.prompts, detector, self.detector.label, seed=self._decomposition_seed(),
                 view_seed=self.detector.seed, prepared=prepared, coarse_scores=coarse,
                 decomposition_cache=self.settings.decomposition_cache,
                 decomposition_workers=self.settings.decomposition_workers,
             )
         return self._segmenter
+
+    def _decomposition_seed(self) -> int:
+        seed = self.settings.decomposition_seed
+        return self.settings.seed if seed is None else seed
 
     def votes_key(self) -> str:
         """Content key of the coarse votes: planning mesh, prompts in order, detector settings."""

@@ -209,6 +209,8 @@ def test_resume_keeps_the_run_s_methods_and_recomputes_a_damaged_vote_cache(smal
     assert cached
     for path in cached:
         path.write_bytes(path.read_bytes()[:10])
+    trials = out / "trials.jsonl"  # drop a trial: a complete (object, seed) is not evaluated again
+    trials.write_text("".join(trials.read_text().splitlines(keepends=True)[:-1]))
     assert main([*IN_PROCESS[:2], "--methods", "coarse", *IN_PROCESS[4:], "--out", str(out), "--resume"]) == 0
     assert json.loads((out / "run.json").read_text())["methods"] == ["coarse", "oracle"]
     assert set(json.loads((out / "summary.json").read_text())["methods"]) == {"coarse", "oracle"}

@@ -1,20 +1,22 @@
 """`python -m sim.evaluate`: the benchmark on the bundled twin (or a real cell) — segmentation, part selection and
 grasp success per method, as the paper's Tables I-III.
 
-For each object the runner (runner.py) hands the cell, the detector and the ground truth to one
+For each (object, seed) the runner (runner.py) hands the cell, the detector and the ground truth to one
 `seggrasp.episode.Episode`: segment once per method (coarse votes and decompositions shared), sample grasps once,
 and for each prompt execute the method's top-k grasps on the selected part, each from a fresh reset of the same
-scene. Outputs in `--out` (records.py; the folder is locked while a run writes it):
+scene. The seed redraws the detector's errors, the scene and the grasps (CoACD keeps config.DECOMPOSITION_SEED).
+Tasks run in local processes or as Ray tasks (ray_engine.py, whose driver alone writes the records). Outputs in
+`--out` (records.py; the folder is locked while a run writes it):
 
-- `trials.jsonl`       one JSON line per trial (appended, flushed and fsynced one by one; a torn last line left by a
-                       killed run is dropped on `--resume`, trials already recorded are skipped, duplicates ignored);
-- `segmentations.jsonl` one line per (object, method): mIoU (area and face count) and per-part IoU;
-- `curves.jsonl`       one line per object: GeoSpreading vs GeoFusion mIoU over the decomposition thresholds;
+- `trials.jsonl`       one JSON line per trial (appended, flushed and fsynced; a torn last line left by a killed run
+                       is dropped on `--resume`, trials already recorded are skipped, duplicates ignored);
+- `segmentations.jsonl` one line per (object, seed, method): mIoU (area and face count) and per-part IoU;
+- `curves.jsonl`       one line per (object, seed): GeoSpreading vs GeoFusion mIoU over the decomposition thresholds;
 - `cache/`             coarse votes per object, keyed by mesh, prompts and detector (a resumed run reuses them);
-- `summary.json`, `summary.md`, `plots/*.png` (report.py, plots.py).
+- `summary.json`, `summary.md`, `plots/*.png` (report.py with the intervals of stats.py, plots.py).
 
-A failed grasp is data; an exception while evaluating an object is a crash: the other objects go on, the summary
-is written, and the exit code is 1. Options: cli.py.
+A failed grasp is data; an exception while evaluating an object is a crash: the other tasks go on, the summary
+is written, and the exit code is 1. Options: cli.py. `python -m sim.evaluate.bench` times the engines (bench.py).
 """
 
 from sim.evaluate.cli import build_config, main, parse_args, run

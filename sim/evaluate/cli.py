@@ -38,8 +38,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help=f"simulated preset ({'|'.join(SIMULATED_PRESETS)}) or {'|'.join(REAL_DETECTORS)} with --weights")
     parser.add_argument("--weights", help="local weights directory (or hub id) for a real detector")
     parser.add_argument("--embodiment", choices=("arm", "floating"), default="arm")
-    parser.add_argument("--workers", type=int, default=1, help="processes evaluating objects in parallel")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1,
+                        help="(object, seed) tasks run in parallel (local processes, or a local Ray instance's CPUs)")
+    parser.add_argument("--seed", type=int, default=None, help="the run seed (default 0); --seeds for several")
+    parser.add_argument("--seeds", help="several run seeds, e.g. 0-4 or 0,3,7: each redraws the detector's errors, "
+                        "the scene poses and the grasps; the report gives 95%% intervals over objects and seeds")
+    parser.add_argument("--engine", choices=("local", "ray"), default="local",
+                        help="local processes (default) or Ray tasks (a local Ray instance, or --address)")
+    parser.add_argument("--address", help="--engine ray: join the Ray cluster at this address (e.g. auto, HEAD:6379)")
     parser.add_argument("--top-k", type=int, default=None, help=f"grasps executed per prompt (default {TOP_K}; --quick {QUICK_TOP_K})")
     parser.add_argument("--out", default=None, help="output folder (default results/evaluate-<detector>-<embodiment>)")
     parser.add_argument("--resume", action="store_true",
@@ -65,6 +71,34 @@ def _split(text: str | None) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()] if text else []
 
 
+def parse_seeds(text: str) -> list[int]:
+    """`0-4`, `0,3,7` or a mix (`0-2,9`) as a list of distinct non-negative seeds (ValueError naming the problem)."""
+    seeds: list[int] = []
+    for item in (t.strip() for t in text.split(",")):
+        low, dash, high = item.partition("-")
+        if not (low.isdigit() and (high.isdigit() if dash else True)):
+            raise ValueError(f"--seeds {text!r}: {item!r} is not a seed or a range like 0-4 (non-negative integers)")
+        first, last = int(low), int(high) if dash else int(low)
+        if last < first:
+            raise ValueError(f"--seeds {text!r}: the range {item} goes down; write {last}-{first}")
+        seeds += range(first, last + 1)
+    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
+    if repeated:
+        raise ValueError(f"--seeds {text!r}: seed(s) {repeated} given twice")
+    return seeds
+
+
+def _seeds(args: argparse.Namespace) -> list[int]:
+    if args.seeds is not None and args.seed is not None:
+        raise ValueError("give either --seed S or --seeds LIST, not both")
+    if args.seeds is not None:
+        return parse_seeds(args.seeds)
+    seed = 0 if args.seed is None else args.seed
+    if seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {seed}")
+    return [seed]
+
+
 def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
@@ -79,6 +113,10 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
         raise ValueError(f"--record must be at least 0, got {args.record}")
     if args.record and args.backend == "real":
         raise ValueError("--record needs the twin: the real cell cannot record picture strips (drop --record)")
+    if args.address and args.engine != "ray":
+        raise ValueError("--address joins a Ray cluster: it needs --engine ray")
+    if args.engine == "ray" and args.backend == "real":
+        raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
 
 
 def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]) -> None:
@@ -108,7 +146,7 @@ def build_config(args: argparse.Namespace) -> RunConfig:
         objects = _select_objects(_split(args.objects), _split(args.categories), args.quick)
     return RunConfig(
         methods=methods, objects=objects, detector=args.detector, weights=args.weights, embodiment=embodiment,
-        seed=args.seed, top_k=top_k, backend=args.backend, config=args.config,
+        seeds=_seeds(args), top_k=top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
         prompts=prompts, record=args.record,
     )
@@ -132,9 +170,10 @@ def _select_objects(object_ids: list[str], categories: list[str], quick: bool) -
     return known
 
 
-def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False) -> tuple[dict, list[dict]]:
-    """Evaluate every object (in `workers` processes) holding `out`'s lock, then write the summary; returns
-    (summary, crashes)."""
+def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False, engine: str = "local",
+        address: str | None = None) -> tuple[dict, list[dict]]:
+    """Evaluate every (object, seed) (in `workers` processes, or on Ray) holding `out`'s lock, then write the
+    summary; returns (summary, crashes)."""
     from tqdm import tqdm
 
     if resume and not out.is_dir():
@@ -142,17 +181,25 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False) ->
     with OutputLock(out):
         config = prepare_out(out, config, resume)
         started = time.time()
-        with tqdm(total=len(config.objects), desc="objects", unit="obj") as bar:
-            crashes = evaluate_objects(config, out, workers, lambda status: _report(status, bar))
+        with tqdm(total=len(config.objects) * len(config.seeds), desc="objects x seeds", unit="task") as bar:
+            on_status = lambda status: _report(status, bar)  # noqa: E731
+            if engine == "ray":
+                from sim.evaluate.ray_engine import evaluate_on_ray  # lazy: ray is imported only when asked for
+
+                crashes = evaluate_on_ray(config, out, workers, address, on_status)
+            else:
+                crashes = evaluate_objects(config, out, workers, on_status)
         return write_summary(config, out, time.time() - started, crashes), crashes
 
 
 def _report(status: dict, bar) -> list[dict]:
     bar.update(1)
     if status["ok"]:
-        bar.set_postfix_str(f"{status['object_id']}: {status['new_trials']} trials in {status['seconds']:.0f} s")
+        bar.set_postfix_str(f"{status['object_id']} seed {status['seed']}: {status['new_trials']} trials in "
+                            f"{status['seconds']:.0f} s")
         return []
-    LOG.error("object %s crashed: %s\n%s", status["object_id"], status["error"], status["traceback"])
+    LOG.error("object %s (seed %s) crashed: %s\n%s", status["object_id"], status["seed"], status["error"],
+              status["traceback"])
     return [status]
 
 
@@ -162,7 +209,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         config = build_config(args)
         out = Path(args.out or f"results/evaluate-{config.detector}-{config.embodiment}{'-quick' if config.quick else ''}")
-        summary, crashes = run(config, out, workers=args.workers, resume=args.resume)
+        summary, crashes = run(config, out, workers=args.workers, resume=args.resume, engine=args.engine,
+                               address=args.address)
     except (ValueError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -171,6 +219,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{run_info['recorded_trials']}/{run_info['expected_trials']} trials recorded in {out} "
           f"({run_info['wall_time_s']:.0f} s)")
     if crashes:
-        print(f"error: {len(crashes)} object(s) crashed: {', '.join(c['object_id'] for c in crashes)}", file=sys.stderr)
+        names = ", ".join(f"{c['object_id']} (seed {c['seed']})" for c in crashes)
+        print(f"error: {len(crashes)} task(s) crashed: {names}", file=sys.stderr)
         return 1
     return 0

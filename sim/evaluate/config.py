@@ -14,8 +14,12 @@ REAL_DETECTORS = ("grounding-dino", "owlv2")
 QUICK_METHODS = ("oracle", "seggrasp", "coarse")
 QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
 QUICK_TOP_K = 3
-#: Settings a resumed run must share with the run it continues (methods and objects are merged instead).
-RESUME_KEYS = ("detector", "weights", "embodiment", "seed", "top_k", "backend", "perceive", "prompts")
+#: Settings a resumed run must share with the run it continues (methods, objects and seeds are merged instead).
+RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts")
+#: CoACD's seed in every run: the one the bundled decompositions (assets/decompositions) were computed with. A cold
+#: decomposition sweep of the twin takes about a minute per object on a 2-core machine, so redrawing it per run seed
+#: would make a multi-seed run cold; the run seeds redraw the detector's errors, the scene poses and the grasps.
+DECOMPOSITION_SEED = 0
 
 
 @dataclass
@@ -27,7 +31,8 @@ class RunConfig:
     detector: str = "typical"
     weights: str | None = None
     embodiment: str = "floating"
-    seed: int = 0
+    seeds: list[int] = field(default_factory=lambda: [0])
+    decomposition_seed: int = DECOMPOSITION_SEED
     top_k: int = TOP_K
     backend: str = "sim"
     config: str | None = None
@@ -36,6 +41,17 @@ class RunConfig:
     quick: bool = False
     prompts: list[str] = field(default_factory=list)
     record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
+
+    @property
+    def seed(self) -> int:
+        """The seed of a one-seed config (see `at_seed`)."""
+        if len(self.seeds) != 1:
+            raise ValueError(f"this run has seeds {self.seeds}; take one with at_seed(seed)")
+        return self.seeds[0]
+
+    def at_seed(self, seed: int) -> "RunConfig":
+        """The same run with the one seed `seed` (what a task of one (object, seed) pair runs)."""
+        return replace(self, seeds=[int(seed)])
 
     def detector_spec(self) -> DetectorSpec:
         """The run's detector (seeded with the run seed)."""

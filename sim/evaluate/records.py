@@ -68,28 +68,40 @@ class JsonLines:
 
     def append(self, record: dict) -> None:
         """Append one record as one line, under an exclusive lock, flushed and fsynced before returning."""
-        line = (json.dumps(record, separators=(",", ":")) + "\n").encode("utf-8")
+        self.extend([record])
+
+    def extend(self, records: Iterable[dict]) -> None:
+        """Append records, one line each, in one write under an exclusive lock, flushed and fsynced before
+        returning (a writer killed during it leaves at most a torn last line)."""
+        data = b"".join((json.dumps(r, separators=(",", ":")) + "\n").encode("utf-8") for r in records)
+        if not data:
+            return
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "ab") as handle:
             fcntl.flock(handle.fileno(), fcntl.LOCK_EX)
             try:
-                handle.write(line)
+                handle.write(data)
                 handle.flush()
                 os.fsync(handle.fileno())
             finally:
                 fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
 
 
+def seed_of(record: dict) -> int:
+    """The run seed a record belongs to (records written before they carried one: seed 0)."""
+    return int(record.get("seed", 0))
+
+
 def trial_key(record: dict) -> tuple:
-    return (record["object_id"], record["method"], record["prompt"], int(record["rank"]))
+    return (record["object_id"], seed_of(record), record["method"], record["prompt"], int(record["rank"]))
 
 
 def segmentation_key(record: dict) -> tuple:
-    return (record["object_id"], record["method"])
+    return (record["object_id"], seed_of(record), record["method"])
 
 
 def curve_key(record: dict) -> tuple:
-    return (record["object_id"],)
+    return (record["object_id"], seed_of(record))
 
 
 def unique_records(records: Iterable[dict], key: Callable[[dict], tuple]) -> list[dict]:
@@ -161,11 +173,11 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
     if resume:
         if not run_file.exists():
             raise ValueError(f"cannot resume {out}: no run recorded there (run.json missing); drop --resume to start")
-        previous = json.loads(run_file.read_text())
+        previous = _upgraded(json.loads(run_file.read_text()))
         changed = {k: (previous.get(k), getattr(config, k)) for k in RESUME_KEYS if previous.get(k) != getattr(config, k)}
         if changed:
             raise ValueError(f"cannot resume {out}: settings differ from the recorded run (recorded, given): {changed}")
-        merged = {name: list(previous.get(name) or []) for name in ("methods", "objects")}
+        merged = {name: list(previous.get(name) or []) for name in ("methods", "objects", "seeds")}
         for name, values in merged.items():
             values += [v for v in getattr(config, name) if v not in values]
         config = type(config)(**dict(asdict(config), **merged))
@@ -175,6 +187,13 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
         JsonLines(out / name).repair()
     atomic_write_json(run_file, asdict(config))
     return config
+
+
+def _upgraded(previous: dict) -> dict:
+    """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it)."""
+    if "seeds" not in previous and "seed" in previous:
+        previous = dict(previous, seeds=[previous["seed"]], decomposition_seed=previous["seed"])
+    return previous
 
 
 class VoteCache:

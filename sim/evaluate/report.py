@@ -20,8 +20,15 @@ from seggrasp.metrics import mean_over_categories, part_selection_accuracy, quat
 from sim.evaluate.config import RunConfig
 from sim.evaluate.plots import write_plots
 from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key
+from sim.evaluate.stats import CONFIDENCE, N_RESAMPLES, method_intervals, paired_differences
 
 ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "anchored", "seggrasp")
+#: Paired differences the report gives (when both methods ran): SegGrasp against its coarse votes and GeoFusion.
+DIFFERENCE_PAIRS = (("seggrasp", "coarse"), ("seggrasp", "geofusion"))
+#: The metrics of the interval tables: (summary key, column title); per-request (all-slot) ones first.
+INTERVAL_COLUMNS = (("miou", "mIoU"), ("part_selection_all_slots", "Part Sel."), ("success_all_slots", "Suc."),
+                    ("success_top1", "top-1 Suc."), ("part_selection", "Part Sel. (executed)"),
+                    ("success", "Suc. (executed)"))
 UNNAMED_FAILURE = "other"
 
 
@@ -31,9 +38,12 @@ def _method_order(config_methods: Sequence[str], seen: Iterable[str]) -> list[st
 
 
 def summarise(trials: list[dict], segmentations: list[dict], curves: list[dict], methods: Sequence[str]) -> dict:
-    """Tables I-III, the failures and the threshold curve as one JSON-ready dict."""
+    """Tables I-III with intervals over objects and seeds, the paired differences, the failures and the threshold
+    curve as one JSON-ready dict."""
     summary: dict = {"methods": {}, "curve": _summarise_curves(curves)}
-    for method in _method_order(methods, [r["method"] for r in trials] + [r["method"] for r in segmentations]):
+    ordered = _method_order(methods, [r["method"] for r in trials] + [r["method"] for r in segmentations])
+    intervals = method_intervals(trials, segmentations, ordered)
+    for method in ordered:
         segs = [r for r in segmentations if r["method"] == method]
         rows = [r for r in trials if r["method"] == method]
         entry: dict = {"n_objects": len({r["object_id"] for r in rows} | {r["object_id"] for r in segs})}
@@ -45,7 +55,11 @@ def summarise(trials: list[dict], segmentations: list[dict], curves: list[dict],
             categories = sorted({r["category"] for r in rows})
             entry["categories"] = {c: grasp_metrics([r for r in rows if r["category"] == c]) for c in categories}
         entry["detector"] = ", ".join(sorted({r["detector"] for r in rows + segs}))
+        entry["seeds"] = sorted({int(r.get("seed", 0)) for r in rows + segs})
+        entry["intervals"] = intervals[method]
         summary["methods"][method] = entry
+    pairs = [(a, b) for a, b in DIFFERENCE_PAIRS if a in summary["methods"] and b in summary["methods"]]
+    summary["differences"] = paired_differences(trials, segmentations, pairs)
     return summary
 
 
@@ -200,15 +214,61 @@ def _curve_table(curve: dict) -> list[str]:
             *_table(["threshold", "GeoSpreading", "GeoFusion (from this threshold up)"], rows)]
 
 
+def seeds_label(seeds: Sequence[int]) -> str:
+    """`0-4` for a run of seeds 0..4, `0, 3, 7` otherwise."""
+    seeds = sorted(seeds)
+    if len(seeds) > 2 and seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ", ".join(str(s) for s in seeds)
+
+
+def _with_interval(d: dict | None) -> str:
+    if not d:
+        return "—"
+    if d["ci_low"] is None:  # one object: no interval
+        return f"{d['mean']:.3f} [—]"
+    return f"{d['mean']:.3f} [{d['ci_low']:.3f}, {d['ci_high']:.3f}]"
+
+
+def _interval_tables(summary: dict, seeds: Sequence[int]) -> list[str]:
+    """The headline: mean [95 % interval] per method and metric, per-seed values, paired differences."""
+    methods, confidence = summary["methods"], f"{CONFIDENCE * 100:g} %"
+    rows = [[name, *(_with_interval(m["intervals"].get(key)) for key, _ in INTERVAL_COLUMNS)]
+            for name, m in methods.items()]
+    lines = [f"## Headline — mean [{confidence} interval] over objects and seeds", "",
+             f"Intervals: percentile cluster bootstrap over objects ({N_RESAMPLES} resamples; a drawn object brings "
+             "all its seeds, prompts and slots; sim/evaluate/stats.py). Part Sel. and Suc. per request (all top-k "
+             "slots; a slot without a grasp is a miss), then over the executed grasps only.", "",
+             *_table(["method", *(title for _, title in INTERVAL_COLUMNS)], rows)]
+    if len(seeds) > 1:
+        per_seed = [[name, key_title, *(_fmt(m["intervals"][key]["per_seed"].get(str(s))) for s in seeds)]
+                    for name, m in methods.items() for key, key_title in INTERVAL_COLUMNS[:3]
+                    if m["intervals"].get(key)]
+        lines += ["", "## Per seed", "", *_table(["method", "metric", *(f"seed {s}" for s in seeds)], per_seed)]
+    differences = summary.get("differences") or {}
+    if differences:
+        rows = [[name, *(_with_interval(d.get(key)) for key, _ in INTERVAL_COLUMNS[:4])]
+                for name, d in differences.items()]
+        lines += ["", f"## Paired differences — mean [{confidence} interval]", "",
+                  "Both methods on the same objects, seeds and requests; an interval that excludes 0 separates them.",
+                  "", *_table(["difference", *(title for _, title in INTERVAL_COLUMNS[:4])], rows)]
+    return lines + [""]
+
+
 def markdown_report(summary: dict, header: dict) -> str:
-    """Tables I-III, per-category results, failures and the threshold curve as Markdown."""
+    """The interval tables, Tables I-III, per-category results, failures and the threshold curve as Markdown."""
     methods = summary["methods"]
+    seeds = header.get("seeds", [header.get("seed", 0)])
     lines = [
         "# SegGrasp evaluation", "",
         f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
-        f" · perceive: {header['perceive']} · seed: {header['seed']} · top-k: {header['top_k']}"
-        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s", "",
+        f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
+        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
+        + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"
+           if "expected_trials" in header else ""), "",
     ]
+    if any("intervals" in m for m in methods.values()):
+        lines += _interval_tables(summary, seeds)
     lines += _table_one(methods) + [""] + _table_two(methods) + _table_three(methods)
     lines += _curve_table(summary.get("curve") or {}) + _per_category(methods) + _failures(methods)
     return "\n".join(lines) + "\n"
@@ -221,7 +281,7 @@ def expected_trials(config: RunConfig) -> int:
     total = 0
     for object_id in config.objects:
         n_prompts = len(config.prompts) if config.prompts else len(load_asset(object_id).prompts)
-        total += n_prompts * len(config.methods) * config.top_k
+        total += n_prompts * len(config.methods) * config.top_k * len(config.seeds)
     return total
 
 
@@ -230,19 +290,22 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
     wanted = set(config.objects)
 
     def of_run(records: list[dict], by_method: bool = True) -> list[dict]:
-        return [r for r in records if r["object_id"] in wanted and (not by_method or r["method"] in config.methods)]
+        return [r for r in records if r["object_id"] in wanted and int(r.get("seed", 0)) in config.seeds
+                and (not by_method or r["method"] in config.methods)]
 
     trials = of_run(read_unique(out / "trials.jsonl", trial_key))
     segmentations = of_run(read_unique(out / "segmentations.jsonl", segmentation_key))
     curves = of_run(read_unique(out / "curves.jsonl", curve_key), by_method=False)
     summary = summarise(trials, segmentations, curves, config.methods)
     header = {
-        "detector": config.detector_spec().label, "embodiment": config.embodiment, "backend": config.backend,
-        "perceive": config.perceive, "seed": config.seed, "top_k": config.top_k, "n_objects": len(config.objects),
-        "wall_time_s": wall_time,
+        "detector": config.at_seed(config.seeds[0]).detector_spec().label, "embodiment": config.embodiment,
+        "backend": config.backend, "perceive": config.perceive, "seeds": config.seeds,
+        "decomposition_seed": config.decomposition_seed, "top_k": config.top_k, "n_objects": len(config.objects),
+        "wall_time_s": wall_time, "recorded_trials": len(trials), "expected_trials": expected_trials(config),
     }
-    summary["run"] = dict(header, methods=config.methods, objects=config.objects, expected_trials=expected_trials(config),
-                          recorded_trials=len(trials), crashed_objects=[c["object_id"] for c in crashes])
+    summary["run"] = dict(header, methods=config.methods, objects=config.objects,
+                          crashed_objects=sorted({c["object_id"] for c in crashes}),
+                          crashed_tasks=[{"object_id": c["object_id"], "seed": c["seed"]} for c in crashes])
     atomic_write_json(out / "summary.json", summary)
     atomic_write_text(out / "summary.md", markdown_report(summary, header))
     write_plots(summary, out / "plots")

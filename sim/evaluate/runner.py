@@ -8,8 +8,9 @@ import multiprocessing
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -18,17 +19,63 @@ from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, Tri
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.evaluate.config import RunConfig, scene_seed_of
-from sim.evaluate.records import JsonLines, VoteCache, curve_key, read_unique, segmentation_key, trial_key
+from sim.evaluate.records import JsonLines, VoteCache, curve_key, read_unique, seed_of, segmentation_key, trial_key
 
 LOG = logging.getLogger("sim.evaluate")
 
 
 @dataclass
+class Recorded:
+    """What the output folder already holds for one (object, seed): its trials, the methods whose segmentation is
+    recorded, and whether its threshold curve is."""
+
+    trials: list[dict] = field(default_factory=list)
+    segmented: set[str] = field(default_factory=set)
+    curve: bool = False
+
+
+@dataclass
 class ObjectTask:
+    """One (object, seed) of a run: every method, prompt and slot of the object in the scene of that seed."""
+
     object_id: str
+    seed: int
     config: RunConfig
     out: str
-    parallel: bool = False  # other objects are evaluated at the same time: one CoACD process per object
+    recorded: Recorded | None = None  # None: read from `out`
+    parallel: bool = False  # other tasks run at the same time: one CoACD process per task
+    collect: bool = False  # return the new records instead of appending them to `out` (the driver writes them)
+
+
+class Sink:
+    """Where `run_object` puts new records: appended to `out`'s files one by one, or (`collect`) kept in
+    `collected` ({file name: records}) for a driver to write."""
+
+    def __init__(self, out: Path, collect: bool = False) -> None:
+        self.out, self.collect = Path(out), collect
+        self.collected: dict[str, list[dict]] = {}
+
+    def add(self, name: str, record: dict) -> None:
+        if self.collect:
+            self.collected.setdefault(name, []).append(record)
+        else:
+            JsonLines(self.out / name).append(record)
+
+
+def recorded_index(out: Path) -> Callable[[str, int], Recorded]:
+    """Read `out`'s result files once; returns what they hold for a given (object, seed)."""
+    index: dict[tuple, Recorded] = {}
+
+    def entry(record: dict) -> Recorded:
+        return index.setdefault((record["object_id"], seed_of(record)), Recorded())
+
+    for record in read_unique(out / "trials.jsonl", trial_key):
+        entry(record).trials.append(record)
+    for record in read_unique(out / "segmentations.jsonl", segmentation_key):
+        entry(record).segmented.add(record["method"])
+    for record in read_unique(out / "curves.jsonl", curve_key):
+        entry(record).curve = True
+    return lambda object_id, seed: index.get((object_id, int(seed)), Recorded())
 
 
 _CELL = None  # one cell per worker process
@@ -59,16 +106,21 @@ def close_cell() -> None:
 def evaluate_object(task: ObjectTask) -> dict:
     """All methods, prompts and trials of one object; returns a status dict (never raises)."""
     started = time.time()
+    sink = Sink(Path(task.out), collect=task.collect)
+    head = {"object_id": task.object_id, "seed": task.seed}
     try:
-        cell = _get_cell(task.config)
-        context, truth = subject_of(task.object_id, task.config, cell)
-        n_new = run_object(cell, context, truth, task.config, Path(task.out), parallel=task.parallel)
-        return {"object_id": task.object_id, "ok": True, "new_trials": n_new, "seconds": time.time() - started}
+        config = task.config.at_seed(task.seed)
+        cell = _get_cell(config)
+        context, truth = subject_of(task.object_id, config, cell)
+        n_new = run_object(cell, context, truth, config, Path(task.out), parallel=task.parallel,
+                           recorded=task.recorded, sink=sink)
+        status = dict(head, ok=True, new_trials=n_new, seconds=time.time() - started)
     except Exception as exc:  # a crash of one object must not lose the others' results
-        return {
-            "object_id": task.object_id, "ok": False, "error": f"{type(exc).__name__}: {exc}",
-            "traceback": traceback.format_exc(), "seconds": time.time() - started,
-        }
+        status = dict(head, ok=False, error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(),
+                      seconds=time.time() - started)
+    if task.collect:  # records of a crashed task are complete lines too: keep them
+        status["records"] = sink.collected
+    return status
 
 
 def subject_of(object_id: str, config: RunConfig, cell: Cell) -> tuple[EpisodeContext, GroundTruth | None]:
@@ -91,40 +143,46 @@ def run_object(
     out: Path,
     detector: DetectorSpec | None = None,
     parallel: bool = False,
+    recorded: Recorded | None = None,
+    sink: Sink | None = None,
 ) -> int:
-    """Run every method's episode slots of one object that `out` does not hold yet; returns how many were added."""
-    trials_file, seg_file = JsonLines(out / "trials.jsonl"), JsonLines(out / "segmentations.jsonl")
-    existing = [r for r in read_unique(trials_file.path, trial_key) if r["object_id"] == context.object_id]
-    done = {trial_key(r) for r in existing}
-    seg_done = {segmentation_key(r) for r in seg_file.read() if r["object_id"] == context.object_id}
+    """Run every method's episode slots of one object (at `config`'s one seed) that `recorded` (default: what `out`
+    holds) lacks, handing new records to `sink` (default: appended to `out`); returns how many trials were added."""
+    recorded = recorded if recorded is not None else recorded_index(out)(context.object_id, config.seed)
+    sink = sink or Sink(out)
+    done = {trial_key(r) for r in recorded.trials}
     settings = EpisodeSettings(
         seed=config.seed, top_k=config.top_k, perceive=config.perceive,
         workspace=workspace_of(cell) if config.perceive else None, decomposition_workers=1 if parallel else None,
+        decomposition_seed=config.decomposition_seed,
     )
     episode = Episode(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
-        vote_cache=VoteCache(out / "cache" / context.object_id), outcome_cache=_reusable_outcomes(existing, config),
+        vote_cache=VoteCache(out / "cache" / context.object_id),
+        outcome_cache=_reusable_outcomes(recorded.trials, config),
     )
     if config.record and not hasattr(cell, "record_next"):
         raise ValueError(f"--record needs a cell that records picture strips; {type(cell).__name__} does not")
     n_new = 0
     for method in config.methods:
         plan = episode.plan(method)
-        if episode.truth_on_mesh is not None and (context.object_id, method) not in seg_done:
-            seg_file.append(segmentation_record(context, plan.method, plan.detector, plan.labels, episode))
-        recorded = 0
+        if episode.truth_on_mesh is not None and method not in recorded.segmented:
+            seg = segmentation_record(context, plan.method, plan.detector, plan.labels, episode)
+            sink.add("segmentations.jsonl", dict(seg, seed=config.seed))
+        strips = 0
         for slot in episode.slots(plan):
             prompt = context.prompts[slot.prompt_index]
-            if (context.object_id, method, prompt, slot.rank) in done:
+            if (context.object_id, config.seed, method, prompt, slot.rank) in done:
                 continue
-            if recorded < config.record and _runs_the_cell(episode, slot):
-                cell.record_next(strip_path(out, method, context.object_id, prompt, slot.rank))
-                recorded += 1
+            if strips < config.record and _runs_the_cell(episode, slot):
+                cell.record_next(strip_path(out, method, context.object_id, prompt, slot.rank, config.seed))
+                strips += 1
             record = episode.execute(slot)
             record_extra(record, config)
-            trials_file.append(record.to_json())
+            sink.add("trials.jsonl", record.to_json())
             n_new += 1
-    _append_curve(episode, config, out)
+    if not recorded.curve and episode.truth_on_mesh is not None and any(m != "oracle" for m in config.methods):
+        sink.add("curves.jsonl", dict(threshold_curve(episode), seed=config.seed))
     return n_new
 
 
@@ -136,10 +194,11 @@ def _runs_the_cell(episode: Episode, slot: Slot) -> bool:
     return episode.outcome_cache is None or key not in episode.outcome_cache
 
 
-def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int) -> Path:
-    """Where `--record` writes the picture strip of one slot: OUT/strips/<method>-<object>-<prompt>-<rank>.png."""
+def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int, seed: int = 0) -> Path:
+    """Where `--record` writes the picture strip of one slot: OUT/strips/<method>-<object>-<prompt>-<rank>.png
+    (seed 0), ...-<rank>-seed<seed>.png for another seed."""
     safe_prompt = "".join(c if c.isalnum() or c in "_." else "_" for c in prompt)
-    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}.png"
+    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}{f'-seed{seed}' if seed else ''}.png"
 
 
 def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
@@ -151,15 +210,6 @@ def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
         if record["executed"] and not record["reused_outcome"]:
             outcomes[grasp_key(np.array(record["T_world_grasp"]), record["width"])] = outcome_from(record)
     return outcomes
-
-
-def _append_curve(episode: Episode, config: RunConfig, out: Path) -> None:
-    curve_file = JsonLines(out / "curves.jsonl")
-    if episode.truth_on_mesh is None or not any(m != "oracle" for m in config.methods):
-        return
-    if any(curve_key(r) == (episode.context.object_id,) for r in curve_file.read()):
-        return
-    curve_file.append(threshold_curve(episode))
 
 
 def workspace_of(cell: Cell):
@@ -213,7 +263,8 @@ def threshold_curve(episode: Episode) -> dict:
     }
 
 
-def _worker_init() -> None:
+def worker_init() -> None:
+    """Set up a worker process: one torch thread."""
     try:
         import torch
 
@@ -222,20 +273,54 @@ def _worker_init() -> None:
         pass
 
 
+def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
+    """Whether `out` already holds every trial of the object's (one seed) run and, on the twin, every method's
+    segmentation and the threshold curve: then its task has nothing to add."""
+    if config.prompts or config.backend == "real":
+        prompts = list(config.prompts)
+    else:
+        from seggrasp.objects import load_asset
+
+        prompts = list(load_asset(object_id).prompts)
+    have = {(r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
+    if any((m, p, k) not in have for m in config.methods for p in prompts for k in range(config.top_k)):
+        return False
+    if config.backend == "real":
+        return True
+    return set(config.methods) <= recorded.segmented and (recorded.curve or set(config.methods) <= {"oracle"})
+
+
+def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = False) -> tuple[list[ObjectTask], list]:
+    """One task per (object, seed), seed by seed (a run stopped early holds whole seeds), with what `out` already
+    holds for it; returns (tasks to run, the statuses of the (object, seed) pairs `out` holds completely)."""
+    recorded = recorded_index(out)
+    tasks, complete = [], []
+    for seed in config.seeds:
+        for object_id in config.objects:
+            held = recorded(object_id, seed)
+            if is_complete(held, object_id, config.at_seed(seed)):
+                complete.append({"object_id": object_id, "seed": seed, "ok": True, "new_trials": 0, "seconds": 0.0})
+            else:
+                tasks.append(ObjectTask(object_id, seed, config, str(out), held, parallel, collect))
+    return tasks, complete
+
+
 def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status) -> list[dict]:
-    """Evaluate every object of the run (in `workers` processes); `on_status` sees each object's status. Returns
-    the crashes."""
-    tasks = [ObjectTask(object_id, config, str(out), parallel=workers > 1) for object_id in config.objects]
+    """Evaluate every (object, seed) of the run that `out` does not hold completely, in `workers` local processes;
+    `on_status` sees each pair's status and returns it as a crash (a one-item list) or not. Returns the crashes."""
+    tasks, complete = make_tasks(config, out, parallel=workers > 1)
+    for status in complete:
+        on_status(status)
     crashes = []
     if workers == 1:
-        _worker_init()
+        worker_init()
         for status in map(evaluate_object, tasks):
             crashes += on_status(status)
         close_cell()
         return crashes
     # not multiprocessing.Pool: its daemonic workers may not start the CoACD processes of a decomposition
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=_worker_init) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init) as pool:
         for status in as_completed([pool.submit(evaluate_object, task) for task in tasks]):
             crashes += on_status(status.result())
     return crashes
@@ -243,4 +328,5 @@ def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status) -> l
 
 def record_extra(record: TrialRecord, config: RunConfig) -> None:
     """What the harness adds to every trial record: the embodiment, backend and whether the mesh was perceived."""
-    record.extra = {"embodiment": config.embodiment, "backend": config.backend, "perceive": config.perceive}
+    record.extra = {"embodiment": config.embodiment, "backend": config.backend, "perceive": config.perceive,
+                    "decomposition_seed": config.decomposition_seed}

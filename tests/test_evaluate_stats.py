@@ -1,0 +1,98 @@
+"""sim.evaluate.stats: the cluster-bootstrap intervals of a multi-seed run, on synthetic records with known answers."""
+
+import numpy as np
+import pytest
+
+from sim.evaluate.report import markdown_report, summarise
+from sim.evaluate.stats import describe, grouped_mean, method_intervals, paired_differences, MetricUnits, GRASP_METRICS
+
+
+def _trials(method: str, successes: dict[tuple[str, int], list[bool]], category: str = "thing") -> list[dict]:
+    """Trial records of `method`: for each (object, seed) one slot per entry of its list (executed, on the part
+    exactly when it succeeded)."""
+    rows = []
+    for (object_id, seed), outcomes in successes.items():
+        for rank, ok in enumerate(outcomes):
+            rows.append({"method": method, "object_id": object_id, "category": category, "seed": seed,
+                         "prompt": "handle", "rank": rank, "executed": True, "success": ok,
+                         "contacts_on_part": ok, "reachable": True, "detector": "simulated:typical",
+                         "T_world_grasp": np.eye(4).tolist()})
+    return rows
+
+
+def _draw(rng: np.random.Generator, n_objects: int, seeds: int, slots: int) -> tuple[dict, float]:
+    """Objects drawn from a population whose success probability is Beta(2, 2)-distributed (true mean 0.5)."""
+    p = rng.beta(2.0, 2.0, size=n_objects)
+    return {(f"obj{o}", s): list(rng.random(slots) < p[o]) for o in range(n_objects) for s in range(seeds)}, 0.5
+
+
+def test_the_interval_covers_the_population_mean_at_about_the_nominal_rate() -> None:
+    rng = np.random.default_rng(7)
+    covered, widths = 0, []
+    for _ in range(60):
+        successes, truth = _draw(rng, n_objects=30, seeds=3, slots=4)
+        d = describe(MetricUnits(_trials("m", successes), GRASP_METRICS["success_all_slots"], by_category=False))
+        covered += d["ci_low"] <= truth <= d["ci_high"]
+        widths.append(d["ci_high"] - d["ci_low"])
+    assert covered >= 51, covered  # nominal 95 %: 57 of 60; binomial 1st percentile ~ 53
+    # between-object spread dominates: sd of an object's rate over 12 slots is about sqrt(0.05 + 0.2/12); an
+    # interval from slots as independent units would be about half as wide
+    expected = 2 * 1.96 * np.sqrt(0.05 + 0.2 / 12) / np.sqrt(30)
+    assert 0.75 * expected < np.mean(widths) < 1.25 * expected, (np.mean(widths), expected)
+
+
+def test_a_paired_difference_of_identical_methods_is_zero_with_a_zero_width_interval() -> None:
+    successes, _ = _draw(np.random.default_rng(1), n_objects=10, seeds=2, slots=3)
+    trials = _trials("seggrasp", successes) + _trials("coarse", successes)
+    diff = paired_differences(trials, [], [("seggrasp", "coarse")])["seggrasp - coarse"]["success_all_slots"]
+    assert diff["mean"] == diff["ci_low"] == diff["ci_high"] == 0.0
+    assert diff["per_seed"] == {"0": 0.0, "1": 0.0}
+
+
+def test_a_method_better_on_every_object_has_a_difference_interval_above_zero() -> None:
+    rng = np.random.default_rng(2)
+    worse, _ = _draw(rng, n_objects=12, seeds=2, slots=4)
+    better = {unit: [True] + outcomes[1:] for unit, outcomes in worse.items()}  # one more success where it failed
+    trials = _trials("seggrasp", better) + _trials("coarse", worse)
+    diff = paired_differences(trials, [], [("seggrasp", "coarse")])["seggrasp - coarse"]["success_all_slots"]
+    gained = np.mean([not outcomes[0] for outcomes in worse.values()]) / 4
+    assert diff["mean"] == pytest.approx(gained)
+    assert 0 < diff["ci_low"] <= diff["mean"] <= diff["ci_high"]
+
+
+def test_means_and_per_seed_values_follow_the_summary_s_formulas() -> None:
+    # two seeds: seed 0 all succeed, seed 1 one of four
+    successes = {("a", 0): [True, True], ("b", 0): [True, True], ("a", 1): [True, False], ("b", 1): [False, False]}
+    segs = [{"method": "m", "object_id": o, "category": c, "seed": 0, "miou": v, "miou_faces": v}
+            for o, c, v in (("a", "mug", 1.0), ("b", "mug", 1.0), ("c", "knife", 0.0))]
+    intervals = method_intervals(_trials("m", successes), segs, ["m"])["m"]
+    assert intervals["success_all_slots"]["mean"] == pytest.approx(5 / 8)
+    assert intervals["success_all_slots"]["per_seed"] == {"0": 1.0, "1": 0.25}
+    assert intervals["miou"]["mean"] == pytest.approx(0.5)  # mean over categories (mug 1.0, knife 0.0), not 2/3
+    weights = np.array([[2.0, 0.0, 1.0]])  # a resample: a twice, b never, c once
+    assert grouped_mean(np.array([1.0, 1.0, 0.0]), np.ones(3), np.array([0, 0, 1]), weights)[0] == pytest.approx(0.5)
+
+
+def test_one_object_has_no_interval_and_the_report_says_so() -> None:
+    trials = _trials("seggrasp", {("a", 0): [True, False], ("a", 1): [True, True]})
+    summary = summarise(trials, [], [], ["seggrasp"])
+    d = summary["methods"]["seggrasp"]["intervals"]["success_all_slots"]
+    assert d["mean"] == pytest.approx(0.75) and d["ci_low"] is None and d["ci_high"] is None
+    text = markdown_report(summary, {"detector": "simulated:typical", "embodiment": "floating", "backend": "sim",
+                                     "perceive": False, "seeds": [0, 1], "top_k": 2, "n_objects": 1,
+                                     "wall_time_s": 1.0})
+    assert "0.750 [—]" in text and "seeds: 0, 1" in text and "| seed 0 | seed 1 |" in text
+
+
+def test_the_engine_benchmark_table_gives_speedups_and_ray_s_overhead() -> None:
+    from sim.evaluate.bench import report
+
+    times = {("local", 1): [100.0, 110.0], ("local", 2): [60.0, 50.0], ("ray", 1): [104.0, 106.0],
+             ("ray", 2): [57.0, 53.0]}
+    text = report(times, [2.0, 3.0], "python -m sim.evaluate.bench")
+    assert "| local | 1 | 105.0 | 100.0, 110.0 |" in text
+    assert "| speedup of 2 workers over 1, local | 1.91x |" in text
+    assert "| speedup of 2 workers over 1, ray | 1.91x |" in text
+    assert "| Ray overhead over local, 1 worker(s) | +0.0 % |" in text
+    assert "| Ray overhead over local, 2 worker(s) | +0.0 % |" in text
+    assert "load average 2.0-3.0" in text
