@@ -48,7 +48,7 @@ def read_trials(folder: Path) -> list[dict]:
 
 
 def per_request(trials: list[dict], seed: int) -> dict[str, dict[tuple, np.ndarray]]:
-    """method -> (seed, object, prompt) -> [part selected, success, executed, top-1 success] shares of its slots."""
+    """method -> (seed, object, prompt) -> [Part Sel., Suc. (shares of its slots), executed slots, top-1 Suc.]."""
     slots: dict[str, dict[tuple, list[dict]]] = defaultdict(lambda: defaultdict(list))
     for r in trials:
         slots[r["method"]][(seed, r["object_id"], r["prompt"])].append(r)
@@ -59,11 +59,14 @@ def per_request(trials: list[dict], seed: int) -> dict[str, dict[tuple, np.ndarr
             rows.sort(key=lambda r: r["rank"])
             out[method][key] = np.array([np.mean([bool(r["contacts_on_part"]) for r in rows]),
                                          np.mean([bool(r["success"]) for r in rows]),
-                                         np.mean([bool(r["executed"]) for r in rows]), float(bool(rows[0]["success"]))])
+                                         sum(bool(r["executed"]) for r in rows), float(bool(rows[0]["success"]))])
     return out
 
 
-def paired(a: dict[tuple, np.ndarray], b: dict[tuple, np.ndarray], column: int, rng) -> tuple[float, float, float, float, int]:
+Requests = dict[tuple, np.ndarray]
+
+
+def paired(a: Requests, b: Requests, column: int, rng) -> tuple[float, float, float, float, int]:
     """Mean of a - b over the shared requests, its standard error and 95 % bootstrap interval, and their count."""
     keys = sorted(set(a) & set(b))
     d = np.array([a[k][column] - b[k][column] for k in keys])
@@ -76,7 +79,6 @@ def paired(a: dict[tuple, np.ndarray], b: dict[tuple, np.ndarray], column: int, 
 
 def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[str]]:
     """Markdown lines of one detector's table, paired differences and done-when checks (and the check lines)."""
-    rng = np.random.default_rng(0)
     seeds, merged = [], defaultdict(dict)
     for folder in folders:
         run = json.loads((folder / "run.json").read_text())
@@ -90,7 +92,7 @@ def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[st
         return float(np.mean(values)) if values else float("nan")
 
     def executed(method: str, seed: int) -> int:
-        return int(round(sum(v[2] * 10 for k, v in merged[method].items() if k[0] == seed)))
+        return int(sum(v[2] for k, v in merged[method].items() if k[0] == seed))
 
     graspable = {k for k, v in merged.get("oracle", {}).items() if v[2] > 0}
 
@@ -99,9 +101,10 @@ def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[st
         return f"{np.mean(values):.3f}" if values else "—"
 
     lines = [f"## Detector `{name}`: seeds {', '.join(map(str, seeds))}", "",
-             "Each cell: mean over seeds (per seed in brackets). Part Sel. and Suc. over all top-k slots. The last",
-             f"two columns: the same over the {len(graspable)} requests whose part has a graspable region (the oracle",
-             "executes at least one grasp there), all seeds pooled.", "",
+             "Each cell: mean over the seeds a method ran on (per seed in brackets, — = not run). Part Sel. and Suc.",
+             "over all top-k slots. The last two columns: the same over the requests whose part has a graspable",
+             f"region (the oracle executes at least one grasp there: {len(graspable)} requests over all seeds), pooled",
+             "over the seeds the method ran on.", "",
              "| method | Part Sel. (all slots) | Suc. (all slots) | top-1 Suc. | executed slots per seed | "
              "Part Sel. (graspable) | Suc. (graspable) |",
              "|---|---|---|---|---|---|---|"]
@@ -111,26 +114,36 @@ def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[st
         for column in (0, 1, 3):
             per_seed = [seed_mean(m, column, s) for s in seeds]
             means[(m, column)] = float(np.nanmean(per_seed))
-            cells.append(f"{means[(m, column)]:.3f} ({' / '.join(f'{v:.3f}' for v in per_seed)})")
-        ex = [executed(m, s) for s in seeds]
+            shown = " / ".join("—" if np.isnan(v) else f"{v:.3f}" for v in per_seed)
+            cells.append(f"{means[(m, column)]:.3f} ({shown})")
+        ran = [s for s in seeds if any(k[0] == s for k in merged[m])]
+        ex = [executed(m, s) for s in ran]
         means[(m, "executed")] = float(np.mean(ex))
-        lines.append(f"| {m} | {' | '.join(cells)} | {' / '.join(map(str, ex))} (mean {np.mean(ex):.0f}) | "
+        ex_cell = " / ".join(str(executed(m, s)) if s in ran else "—" for s in seeds)
+        lines.append(f"| {m} | {' | '.join(cells)} | {ex_cell} (mean {np.mean(ex):.0f}) | "
                      f"{graspable_mean(m, 0)} | {graspable_mean(m, 1)} |")
-    lines += ["", f"Paired differences over requests (seed, object, prompt): mean ± standard error [95 % bootstrap "
-              f"interval], number of requests.", "",
-              "| difference | Part Sel. (all slots) | Suc. (all slots) |", "|---|---|---|"]
-    diffs = {}
+    difference_rows, diffs = differences(merged, methods)
+    lines += ["", "Paired differences over requests (seed, object, prompt): mean ± standard error [95 % bootstrap "
+              "interval], number of requests.", "",
+              "| difference | Part Sel. (all slots) | Suc. (all slots) |", "|---|---|---|", *difference_rows]
+    checks = done_when(name, means, diffs)
+    return lines + ["", "Done-when checks:", "", *checks], checks
+
+
+def differences(merged: dict[str, Requests], methods: list[str]) -> tuple[list[str], dict]:
+    """Table rows of `seggrasp` minus every other method (Part Sel., Suc.), and (method, column) -> (mean, lo, hi)."""
+    rng = np.random.default_rng(0)
+    rows, diffs = [], {}
+    if "seggrasp" not in merged:
+        return rows, diffs
     for other in [m for m in methods if m != "seggrasp"]:
-        if "seggrasp" not in merged:
-            break
         cells = []
         for column in (0, 1):
             mean, se, lo, hi, n = paired(merged["seggrasp"], merged[other], column, rng)
             diffs[(other, column)] = (mean, lo, hi)
             cells.append(f"{mean:+.3f} ± {se:.3f} [{lo:+.3f}, {hi:+.3f}], n={n}")
-        lines.append(f"| seggrasp − {other} | {' | '.join(cells)} |")
-    checks = done_when(name, means, diffs)
-    return lines + ["", "Done-when checks:", "", *checks], checks
+        rows.append(f"| seggrasp − {other} | {' | '.join(cells)} |")
+    return rows, diffs
 
 
 def done_when(name: str, means: dict, diffs: dict) -> list[str]:
@@ -148,11 +161,13 @@ def done_when(name: str, means: dict, diffs: dict) -> list[str]:
                           f"[{lo:+.3f}, {hi:+.3f}] -> {verdict}")
     if ("oracle", 0) in means:
         ratio = means[("seggrasp", 0)] / means[("oracle", 0)]
-        checks.append(f"- [{name}] Part Sel. >= 0.9 x oracle: {means[('seggrasp', 0)]:.3f} / {means[('oracle', 0)]:.3f} "
-                      f"= {ratio:.3f} x -> {'met' if ratio >= 0.9 else 'MISSED'}")
+        ours, oracle = means[("seggrasp", 0)], means[("oracle", 0)]
+        checks.append(f"- [{name}] Part Sel. >= 0.9 x oracle: {ours:.3f} / {oracle:.3f} = {ratio:.3f} x -> "
+                      f"{'met' if ratio >= 0.9 else 'MISSED'}")
         executed = means[("seggrasp", "executed")] / means[("oracle", "executed")]
-        checks.append(f"- [{name}] executed slots >= 95 % of oracle's: {means[('seggrasp', 'executed')]:.0f} / "
-                      f"{means[('oracle', 'executed')]:.0f} = {executed:.1%} -> {'met' if executed >= 0.95 else 'MISSED'}")
+        ours, oracle = means[("seggrasp", "executed")], means[("oracle", "executed")]
+        checks.append(f"- [{name}] executed slots >= 95 % of oracle's: {ours:.0f} / {oracle:.0f} = {executed:.1%} -> "
+                      f"{'met' if executed >= 0.95 else 'MISSED'}")
     return checks
 
 
@@ -215,7 +230,8 @@ def planned_object(episode, top_k: int) -> dict[str, list[tuple[float, int]]]:
         else:
             probs = face_part_probabilities([evidence[e] for e in variant[1]])
             chosen = variant[2].select(grasps, mesh, probs, top_k)
-        results[name] = [(float((truth[faces[c]] == k).all(axis=1).sum()) / top_k, len(c)) for k, c in enumerate(chosen)]
+        on_part = [float((truth[faces[c]] == k).all(axis=1).sum()) / top_k for k, c in enumerate(chosen)]
+        results[name] = [(share, len(c)) for share, c in zip(on_part, chosen)]
     return results
 
 
@@ -294,8 +310,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    command = "python bench/bench_selection.py " + " ".join(
-        [f"--runs {v}" for v in args.runs] + ([f"--planned {args.planned}"] if args.planned else []) + [f"--out {args.out}"])
+    options = [f"--runs {v}" for v in args.runs] + ([f"--planned {args.planned}"] if args.planned else [])
+    command = "python bench/bench_selection.py " + " ".join(options + [f"--out {args.out}"])
     lines = [*HEADER, "", "Regenerate: `" + command + "`", ""]
     all_checks = []
     for name, folders in runs.items():
