@@ -66,9 +66,12 @@ def per_request(trials: list[dict], seed: int) -> dict[str, dict[tuple, np.ndarr
 Requests = dict[tuple, np.ndarray]
 
 
-def paired(a: Requests, b: Requests, column: int, rng) -> tuple[float, float, float, float, int]:
-    """Mean of a - b over the shared requests, its standard error and 95 % bootstrap interval, and their count."""
-    keys = sorted(set(a) & set(b))
+def paired(
+    a: Requests, b: Requests, column: int, rng, within: set | None = None
+) -> tuple[float, float, float, float, int]:
+    """Mean of a - b over the shared requests (those in `within` if given), its standard error and 95 % bootstrap
+    interval, and their count."""
+    keys = sorted(set(a) & set(b) & (within if within is not None else set(a)))
     d = np.array([a[k][column] - b[k][column] for k in keys])
     if len(d) < 2:
         return float("nan"), float("nan"), float("nan"), float("nan"), len(d)
@@ -122,25 +125,28 @@ def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[st
         ex_cell = " / ".join(str(executed(m, s)) if s in ran else "—" for s in seeds)
         lines.append(f"| {m} | {' | '.join(cells)} | {ex_cell} (mean {np.mean(ex):.0f}) | "
                      f"{graspable_mean(m, 0)} | {graspable_mean(m, 1)} |")
-    difference_rows, diffs = differences(merged, methods)
+    difference_rows, diffs = differences(merged, methods, graspable)
     lines += ["", "Paired differences over requests (seed, object, prompt): mean ± standard error [95 % bootstrap "
-              "interval], number of requests.", "",
-              "| difference | Part Sel. (all slots) | Suc. (all slots) |", "|---|---|---|", *difference_rows]
+              "interval], number of requests; over all requests, then over the graspable ones.", "",
+              "| difference | Part Sel. (all slots) | Suc. (all slots) | Part Sel. (graspable) | Suc. (graspable) |",
+              "|---|---|---|---|---|", *difference_rows]
     checks = done_when(name, means, diffs)
     return lines + ["", "Done-when checks:", "", *checks], checks
 
 
-def differences(merged: dict[str, Requests], methods: list[str]) -> tuple[list[str], dict]:
-    """Table rows of `seggrasp` minus every other method (Part Sel., Suc.), and (method, column) -> (mean, lo, hi)."""
+def differences(merged: dict[str, Requests], methods: list[str], graspable: set) -> tuple[list[str], dict]:
+    """Table rows of `seggrasp` minus every other method (Part Sel., Suc.; all requests, then the `graspable`
+    ones), and (method, column) -> (mean, lo, hi) over all requests."""
     rng = np.random.default_rng(0)
     rows, diffs = [], {}
     if "seggrasp" not in merged:
         return rows, diffs
     for other in [m for m in methods if m != "seggrasp"]:
         cells = []
-        for column in (0, 1):
-            mean, se, lo, hi, n = paired(merged["seggrasp"], merged[other], column, rng)
-            diffs[(other, column)] = (mean, lo, hi)
+        for within, column in ((None, 0), (None, 1), (graspable, 0), (graspable, 1)):
+            mean, se, lo, hi, n = paired(merged["seggrasp"], merged[other], column, rng, within)
+            if within is None:
+                diffs[(other, column)] = (mean, lo, hi)
             cells.append(f"{mean:+.3f} ± {se:.3f} [{lo:+.3f}, {hi:+.3f}], n={n}")
         rows.append(f"| seggrasp − {other} | {' | '.join(cells)} |")
     return rows, diffs

@@ -37,6 +37,7 @@ def test_tables_differences_and_checks(tmp_path) -> None:
     text = out.read_text()
     assert "| seggrasp | 1.000 (1.000 / 1.000) | 0.500 (0.500 / 0.500) | 1.000 (1.000 / 1.000) | 6 / 6 (mean 6)" in text
     assert "| seggrasp − coarse | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 |" in text
+    assert "| seggrasp − shapegrasp | +0.000 ± 0.000 [+0.000, +0.000], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.000" in text
     assert "Suc. all slots beats shapegrasp: difference +0.500" in text and "-> met" in text
     assert "Part Sel. all slots beats shapegrasp: difference +0.000" in text and "-> MISSED" in text
     assert "executed slots >= 95 % of oracle's: 6 / 6 = 100.0% -> met" in text
