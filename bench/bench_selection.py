@@ -341,6 +341,8 @@ HEADER = [
     "`seggrasp-nearest` the same, read only at the face nearest each contact; `anchored` the same labels, grasps",
     "where both nearest faces carry the prompt's label; `seggrasp-agree` the earlier default (only where those",
     "labels agree with the coarse votes' argmax); `coarse`, `shapegrasp`, `oracle` as in `seggrasp.method`.",
+    "Each run: `nice python -m sim.evaluate --embodiment arm --workers 1 --detector D --seed S --methods M --out DIR`",
+    "(`--resume` with the extra methods where a folder already held a run; see the last section).",
 ]
 FOOTER = [
     "## How the policy was chosen",
