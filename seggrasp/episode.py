@@ -2,7 +2,7 @@
 
 One episode for one object in one scene: reset the cell, get the object's mesh (the cell's own, or reconstructed
 from its cameras), let a method (seggrasp/method.py) label it into the prompted parts, sample grasps on the mesh,
-keep per prompt the top-k grasps on the faces labelled with that prompt, move them into the world
+keep per prompt the top-k grasps the method's selection chooses for that prompt, move them into the world
 (`T_world_obj @ T_obj_grasp`) and execute each one from a fresh reset of the same scene. Every trial slot becomes one
 `TrialRecord`. A harness chooses the cell, the detector (`seggrasp.truth.DetectorSpec`) and, for a labelled object,
 the ground truth (`seggrasp.truth.GroundTruth`), and passes them in.
@@ -164,12 +164,16 @@ def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
 def plan_slots(
     plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int
 ) -> list[Slot]:
-    """The top-k slots of each target prompt: the plan's own grasps (shapegrasp) or the best of `grasps` on the
-    faces the plan selects on, moved into the world."""
+    """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
+    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on; moved into
+    the world."""
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
-        chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k)
+        if plan.policy is not None:
+            chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, top_k)
+        else:
+            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:

@@ -4,11 +4,14 @@ result.
 
 Methods (every record names its method and its detector):
 
-- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + prompt anchoring
-  (`seggrasp.fusion.anchor_prompts`: every prompt owns a convex part) give the labels; grasps are selected only
-  where those labels agree with the coarse votes' argmax (`seggrasp.fusion.agreed_labels`), so that a wrong anchor
-  or a wrong fused label does not send grasps to the wrong part (the paper selects on its labels alone). What that
-  choice was measured to gain: docs/results/grasp-selection.md;
+- `seggrasp`: coarse voting + GeoFusion (multi-fusion and fine-grained optimisation) + soft prompt anchoring give
+  the labels; grasps are chosen by the probability that both pads land on the prompted part
+  (`seggrasp.grasp.policy.PartPolicy`), from per-face probabilities that average the shares of the GeoFusion scores,
+  the coarse votes and the anchored labels (`face_probabilities`), over the faces under each pad's footprint;
+  a request is left without grasps only when no candidate is plausibly on the part;
+- `seggrasp-nearest`: the same probabilities read only at the face nearest each contact (ablation of the footprint);
+- `seggrasp-agree`: the earlier default, grasps only where the anchored labels agree with the coarse votes' argmax
+  (`seggrasp.fusion.agreed_labels`). What each choice gains: docs/results/grasp-selection.md;
 - `coarse`: coarse voting only (the paper's baseline), the same grasps;
 - `multi`, `opt`, `geofusion`: the ablations (multi-fusion only, fine-grained optimisation only, both = the paper's
   GeoFusion); `anchored`: GeoFusion + anchoring, grasps selected on its labels alone;
@@ -30,6 +33,7 @@ from seggrasp.decompose import DecompositionConfig, Partition, decompose_sweep
 from seggrasp.detect.base import Detector
 from seggrasp.fusion import agreed_labels, coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
 from seggrasp.grasp import GraspSet
+from seggrasp.grasp.policy import PartPolicy, face_part_probabilities, one_hot
 from seggrasp.mesh import PreparedMesh, prepare_mesh
 from seggrasp.segment import SegmentationConfig, segment
 from seggrasp.vote import labels_from_scores
@@ -40,11 +44,13 @@ SHAPEGRASP = "shapegrasp"
 
 class Recipe(NamedTuple):
     """How a voting method labels: the refinement mode of `seggrasp.fusion.refine_scores`, whether every prompt is
-    anchored to a convex part, and whether grasps are selected only where the labels agree with the coarse votes."""
+    anchored to a convex part, and how grasps are selected: only where the labels agree with the coarse votes
+    (`on_agreement`), by per-face probabilities under `policy`, or (neither) on the labels."""
 
     refinement: str
     anchor: bool = False
     on_agreement: bool = False
+    policy: PartPolicy | None = None
 
     @property
     def multi_fusion(self) -> bool:
@@ -58,10 +64,12 @@ class Recipe(NamedTuple):
 #: The recipe of every method that labels by votes.
 RECIPES: dict[str, Recipe] = {
     "coarse": Recipe("none"), "multi": Recipe("multi"), "opt": Recipe("opt"), "geofusion": Recipe("full"),
-    "anchored": Recipe("full", anchor=True), "seggrasp": Recipe("full", anchor=True, on_agreement=True),
-    "spread": Recipe("spread"),
+    "anchored": Recipe("full", anchor=True), "seggrasp": Recipe("full", anchor=True, policy=PartPolicy()),
+    "seggrasp-nearest": Recipe("full", anchor=True, policy=PartPolicy(footprint_radius=0.0)),
+    "seggrasp-agree": Recipe("full", anchor=True, on_agreement=True), "spread": Recipe("spread"),
 }
-METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "spread", ORACLE, SHAPEGRASP)
+METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "spread", "seggrasp-nearest",
+           "seggrasp-agree", ORACLE, SHAPEGRASP)
 
 
 def check_method(method: str) -> str:
@@ -73,14 +81,17 @@ def check_method(method: str) -> str:
 
 @dataclass
 class PartPlan:
-    """A method's per-face labels on the planning mesh, the labels its grasps are selected on (None: `labels`) and,
-    for `shapegrasp`, its own grasps per prompt."""
+    """A method's per-face labels on the planning mesh, the labels its grasps are selected on (None: `labels`), for
+    `shapegrasp` its own grasps per prompt, and, for a method that selects by probability, the (F, P) per-face
+    prompt probabilities and the `PartPolicy` that turns them into grasps."""
 
     method: str
     detector: str
     labels: np.ndarray
     own_grasps: list[GraspSet] | None = None
     grasp_labels: np.ndarray | None = None
+    face_probabilities: np.ndarray | None = None
+    policy: PartPolicy | None = None
 
     @property
     def selection_labels(self) -> np.ndarray:
@@ -169,7 +180,18 @@ class ObjectSegmenter:
             return PartPlan(method, self.detector_label, shapegrasp_labels(votes, part_of_face), grasps)
         recipe = RECIPES[method]
         partitions = [] if recipe.refinement == "none" else self.partitions()
-        _, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, recipe.refinement,
-                                  recipe.anchor)
-        grasp_labels = agreed_labels(labels, labels_from_scores(self.coarse_scores())) if recipe.on_agreement else None
-        return PartPlan(method, self.detector_label, labels, grasp_labels=grasp_labels)
+        refined, labels = refine_labels(self.coarse_scores(), partitions, self.mesh.area_faces, recipe.refinement,
+                                        recipe.anchor)
+        plan = PartPlan(method, self.detector_label, labels)
+        if recipe.on_agreement:
+            plan.grasp_labels = agreed_labels(labels, labels_from_scores(self.coarse_scores()))
+        if recipe.policy is not None:
+            plan.face_probabilities = face_probabilities(refined, self.coarse_scores(), labels)
+            plan.policy = recipe.policy
+        return plan
+
+
+def face_probabilities(refined: np.ndarray, coarse: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """(F, P) per-face prompt probabilities of the `seggrasp` method: the mean of the shares of the refined
+    (GeoFusion) scores, of the coarse votes and of the (anchored) labels as one-hot rows."""
+    return face_part_probabilities([refined, coarse, one_hot(labels, np.shape(coarse)[1])])

@@ -8,8 +8,10 @@ import trimesh
 from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.decompose import Partition
 from seggrasp.fusion import part_mean_scores
+from seggrasp.grasp import GraspSet
 from seggrasp.cell import GraspOutcome
-from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, failure_of, table_plane_in_object_frame
+from seggrasp.episode import (Episode, EpisodeContext, EpisodeSettings, Observation, failure_of, plan_slots,
+                              table_plane_in_object_frame)
 from seggrasp.labels import PartLabels, find_prompt, prompt_index
 from seggrasp.method import ObjectSegmenter
 from seggrasp.truth import DetectorSpec, GroundTruth
@@ -128,25 +130,52 @@ def test_shapegrasp_grasps_top_down_at_the_voted_part() -> None:
     assert grasps[1].poses[0, 2, 3] >= 0.02
 
 
-def test_seggrasp_selects_grasps_only_where_its_labels_agree_with_the_votes(cylinder) -> None:
-    # votes: the top says "top"; the side and the bottom both lean to "side", the bottom only slightly
+def cylinder_votes(cylinder):
+    """Votes on the cylinder's three surfaces: the top says "top"; the side and the bottom both lean to "side", the
+    bottom only slightly; and a decomposition whose parts are the three surfaces."""
     gt = cylinder.labels.face_labels
     votes = np.zeros((len(gt), 3))
     votes[gt == 0, 0] = 1.0
     votes[gt == 1, 1] = 1.0
     votes[gt == 2] = [0.0, 0.6, 0.5]
-    pieces = Partition(0.05, np.asarray(gt))  # a decomposition whose parts are the cylinder's three surfaces
     segmenter = ObjectSegmenter(cylinder.mesh, ["top", "side", "bottom"], None, "votes", coarse_scores=votes,
-                                partitions=[pieces])
-    plan = segmenter.plan("seggrasp", np.eye(4))
+                                partitions=[Partition(0.05, np.asarray(gt))])
+    return gt, votes, segmenter
+
+
+def test_seggrasp_agree_selects_grasps_only_where_its_labels_agree_with_the_votes(cylinder) -> None:
+    gt, votes, segmenter = cylinder_votes(cylinder)
+    plan = segmenter.plan("seggrasp-agree", np.eye(4))
     anchored = segmenter.plan("anchored", np.eye(4))
     np.testing.assert_array_equal(plan.labels, anchored.labels)
-    assert anchored.grasp_labels is None
+    assert anchored.grasp_labels is None and anchored.policy is None
     coarse = np.argmax(votes, axis=1)
     expected = np.where(plan.labels == coarse, plan.labels, -1)
     np.testing.assert_array_equal(plan.grasp_labels, expected)
     assert (plan.labels[gt == 2] == 2).all()  # anchoring gives "bottom" its own part ...
     assert (plan.grasp_labels[gt == 2] == -1).all()  # ... but the votes disagree there: no grasps on it
+
+
+def test_seggrasp_fills_the_request_the_agreement_filter_leaves_empty(cylinder) -> None:
+    gt, _, segmenter = cylinder_votes(cylinder)
+    mesh = cylinder.mesh
+    # two grasps with both contacts on the bottom disc, one on the side (better scored)
+    contacts = np.array([[[-0.01, 0.0, 0.0], [0.01, 0.0, 0.0]], [[0.0, -0.01, 0.0], [0.0, 0.01, 0.0]],
+                         [[-0.03, 0.0, 0.05], [0.03, 0.0, 0.05]]])
+    poses = np.repeat(np.eye(4)[None], 3, axis=0)
+    grasps = GraspSet(poses, [0.02, 0.02, 0.06], [0.2, 0.1, 0.9], contacts)
+    observation = Observation(mesh, np.eye(4))
+    plan = segmenter.plan("seggrasp", np.eye(4))
+    assert plan.grasp_labels is None and plan.policy is not None
+    assert plan.face_probabilities.shape == (len(gt), 3)
+    np.testing.assert_allclose(plan.face_probabilities.sum(axis=1), 1.0)
+    slots = plan_slots(plan, grasps, observation, 3, [2], top_k=3)
+    assert [s.grasp is not None for s in slots] == [True, True, False]
+    assert [float(s.grasp.scores[0]) for s in slots[:2]] == [0.2, 0.1]  # the region in the generator's order
+    agree = plan_slots(segmenter.plan("seggrasp-agree", np.eye(4)), grasps, observation, 3, [2], top_k=3)
+    assert all(s.grasp is None for s in agree)
+    side = plan_slots(plan, grasps, observation, 3, [1], top_k=1)
+    assert side[0].grasp is not None and float(side[0].grasp.scores[0]) == 0.9
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:

@@ -1,0 +1,49 @@
+"""bench/bench_selection.py: per-request figures over seeds, paired differences and the done-when checks."""
+
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+bench_selection = pytest.importorskip("bench_selection")
+
+#: per method the (on part, success) of each of a request's two slots, the same for every request; None = no grasp
+SLOTS = {"seggrasp": [(True, True), (True, False)], "coarse": [(True, False), None],
+         "shapegrasp": [(True, False), (True, False)], "oracle": [(True, True), (True, True)]}
+
+
+def write_run(folder: Path, seed: int, requests: list[tuple[str, str]]) -> None:
+    folder.mkdir(parents=True)
+    (folder / "run.json").write_text(json.dumps({"seed": seed, "detector": "typical"}))
+    lines = []
+    for method, slots in SLOTS.items():
+        for object_id, prompt in requests:
+            for rank, slot in enumerate(slots):
+                on_part, success = slot if slot is not None else (False, False)
+                lines.append(json.dumps({"method": method, "object_id": object_id, "prompt": prompt, "rank": rank,
+                                         "contacts_on_part": on_part, "success": success,
+                                         "executed": slot is not None}))
+    (folder / "trials.jsonl").write_text("\n".join(lines) + "\n{\"torn")
+
+
+def test_tables_differences_and_checks(tmp_path) -> None:
+    requests = [("mug", "handle"), ("mug", "body"), ("knife", "blade")]
+    write_run(tmp_path / "s0", 0, requests)
+    write_run(tmp_path / "s1", 1, requests)
+    out = tmp_path / "doc" / "selection.md"
+    assert bench_selection.main(["--runs", f"typical={tmp_path / 's0'},{tmp_path / 's1'}", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "| seggrasp | 1.000 (1.000 / 1.000) | 0.500 (0.500 / 0.500) | 1.000 (1.000 / 1.000) | 6 / 6 (mean 6)" in text
+    assert "| seggrasp − coarse | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 |" in text
+    assert "| seggrasp − shapegrasp | +0.000 ± 0.000 [+0.000, +0.000], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.000" in text
+    assert "Suc. all slots beats shapegrasp: difference +0.500" in text and "-> met" in text
+    assert "Part Sel. all slots beats shapegrasp: difference +0.000" in text and "-> MISSED" in text
+    assert "executed slots >= 95 % of oracle's: 6 / 6 = 100.0% -> met" in text
+
+
+def test_bad_run_folder_is_a_clear_error(tmp_path, capsys) -> None:
+    assert bench_selection.main(["--runs", f"typical={tmp_path}", "--out", str(tmp_path / "x.md")]) == 2
+    assert "not a sim.evaluate output folder" in capsys.readouterr().err
+    assert bench_selection.main(["--runs", "typical", "--out", str(tmp_path / "x.md")]) == 2
