@@ -44,8 +44,9 @@ faces of those parts take their prompt, every other face keeps its GeoFusion lab
 Measured (category-mean mIoU on the twin, `typical` detector, four run seeds, against coarse voting, GeoFusion,
 ShapeGrasp's labels and three alternative anchorings): docs/results/fusion.md.
 The assignment is still wrong for about a quarter of the prompts (the detector's evidence allows no better here), and
-a wrong anchor would send all of a prompt's grasps to the wrong part; `agreed_labels` guards the grasp selection
-against that (see `seggrasp.method`).
+a wrong anchor would send all of a prompt's grasps to the wrong part; the default grasp selection therefore reads
+per-face probabilities that also weigh the GeoFusion scores and the coarse votes (`seggrasp.grasp.policy`), and
+`agreed_labels` serves the `seggrasp-agree` ablation (see `seggrasp.method`).
 
 Soft anchoring (`soft_anchor_prompts`, anchoring mode "soft", the default of `refine_labels`). Hard anchoring is a
 gamble where the detector's evidence is weak: with two parts and two prompts whose part distributions are nearly
