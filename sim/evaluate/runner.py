@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import functools
 import logging
 import multiprocessing
 import time
@@ -273,15 +274,20 @@ def worker_init() -> None:
         pass
 
 
+@functools.lru_cache(maxsize=None)
+def _twin_prompts(object_id: str) -> tuple[str, ...]:
+    """The twin object's own prompts (loaded once per process, not once per seed)."""
+    from seggrasp.objects import load_asset
+
+    return tuple(load_asset(object_id).prompts)
+
+
 def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
     """Whether `out` already holds every trial of the object's (one seed) run and, on the twin, every method's
     segmentation and the threshold curve: then its task has nothing to add."""
-    if config.prompts or config.backend == "real":
-        prompts = list(config.prompts)
-    else:
-        from seggrasp.objects import load_asset
-
-        prompts = list(load_asset(object_id).prompts)
+    if not recorded.trials:  # a fresh (object, seed): nothing to compare, no asset to load
+        return False
+    prompts = list(config.prompts) if config.prompts or config.backend == "real" else _twin_prompts(object_id)
     have = {(r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
     if any((m, p, k) not in have for m in config.methods for p in prompts for k in range(config.top_k)):
         return False
