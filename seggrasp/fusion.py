@@ -327,8 +327,11 @@ def anchor_priors(
     return priors
 
 
-def _shares(scores: np.ndarray) -> np.ndarray:
-    """Each row of `scores` divided by its sum (zero rows stay zero)."""
+def row_shares(scores: np.ndarray) -> np.ndarray:
+    """Each row of a non-negative (F, P) matrix divided by its sum (all-zero rows stay zero)."""
+    scores = np.asarray(scores, dtype=np.float64)
+    if scores.ndim != 2 or (scores < 0).any() or not np.isfinite(scores).all():
+        raise ValueError(f"need a finite non-negative (F, P) score matrix, got shape {scores.shape}")
     total = scores.sum(axis=1, keepdims=True)
     return np.divide(scores, total, out=np.zeros_like(scores), where=total > 0)
 
@@ -344,7 +347,7 @@ def soft_anchor_prompts(
     priors = anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio)
     anchored = np.asarray(labels, dtype=np.int64).copy()
     touched = priors.any(axis=1)
-    anchored[touched] = np.argmax(_shares(scores) + priors, axis=1)[touched]
+    anchored[touched] = np.argmax(row_shares(scores) + priors, axis=1)[touched]
     return anchored
 
 
@@ -357,7 +360,7 @@ def soft_anchor_probabilities(
     vote or a prior its row argmax is the label `soft_anchor_prompts` gives when `labels` is the argmax of `scores`;
     for GeoFusion's refined scores that is the default `refine_labels` label."""
     scores = np.asarray(scores, dtype=np.float64)
-    return _shares(_shares(scores) + anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio))
+    return row_shares(row_shares(scores) + anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio))
 
 
 #: Anchoring modes of `refine_labels`: "off" = the paper's GeoFusion labels, "hard" = `anchor_prompts` (one part

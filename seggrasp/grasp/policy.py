@@ -25,17 +25,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from seggrasp.fusion import row_shares
 from seggrasp.grasp.select import TOP_K, contact_faces
 from seggrasp.grasp.types import GraspSet
-
-
-def row_shares(scores: np.ndarray) -> np.ndarray:
-    """Each row of a non-negative (F, P) matrix divided by its sum (all-zero rows stay zero)."""
-    scores = np.asarray(scores, dtype=np.float64)
-    if scores.ndim != 2 or (scores < 0).any() or not np.isfinite(scores).all():
-        raise ValueError(f"need a finite non-negative (F, P) score matrix, got shape {scores.shape}")
-    total = scores.sum(axis=1, keepdims=True)
-    return np.divide(scores, total, out=np.zeros_like(scores), where=total > 0)
 
 
 def one_hot(labels: np.ndarray, n_prompts: int) -> np.ndarray:
