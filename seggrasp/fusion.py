@@ -68,10 +68,9 @@ Scaled by its own best part (as `assign_parts_to_prompts` does), such a prompt s
 its little evidence leans to, usually a big part another prompt holds, and pushes that prompt onto a wrong part.
 So on each level only the prompts whose share reaches ANCHOR_MIN_RATIO times the leading share on at least one
 part take part in the assignment; the others get no prior there and keep their GeoFusion faces (the fallback to
-GeoFusion, per prompt and level). `soft_anchor_probabilities` gives the per-face distribution behind the soft
-labels (share plus priors, normalised), for callers that weigh parts by confidence.
+GeoFusion, per prompt and level).
 Measured against GeoFusion, hard and ungated soft anchoring on the twin (with its multi-part categories) and on the
-labelled YCB scans over ten detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin` and
+labelled YCB scans over twenty detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin` and
 `--meshes ycb` (results in docs/results/seg-quality-*.md).
 """
 
@@ -349,18 +348,6 @@ def soft_anchor_prompts(
     touched = priors.any(axis=1)
     anchored[touched] = np.argmax(row_shares(scores) + priors, axis=1)[touched]
     return anchored
-
-
-def soft_anchor_probabilities(
-    scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
-    prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
-) -> np.ndarray:
-    """(F, P) per-face distribution over the prompts behind soft anchoring: score share plus `anchor_priors`,
-    normalised per face (all zero for a face with no vote and no prior, which stays unknown). On faces with a
-    vote or a prior its row argmax is the label `soft_anchor_prompts` gives when `labels` is the argmax of `scores`;
-    for GeoFusion's refined scores that is the default `refine_labels` label."""
-    scores = np.asarray(scores, dtype=np.float64)
-    return row_shares(row_shares(scores) + anchor_priors(scores, partitions, face_areas, prior, n_levels, min_ratio))
 
 
 #: Anchoring modes of `refine_labels`: "off" = the paper's GeoFusion labels, "hard" = `anchor_prompts` (one part

@@ -20,7 +20,6 @@ from seggrasp.fusion import (
     refine_labels,
     refine_scores,
     soft_anchor_prompts,
-    soft_anchor_probabilities,
 )
 from seggrasp.vote import labels_from_scores
 
@@ -222,17 +221,6 @@ def test_soft_anchoring_leaves_a_prompt_without_competing_evidence_out_of_the_as
     # the default gate keeps the pivot out: the blade keeps its part, the pivot keeps its (empty) GeoFusion faces
     gated = soft_anchor_prompts(geofusion, WEAK_PROMPT_SCORES, WEAK_PROMPT_LEVEL, np.ones(6))
     np.testing.assert_array_equal(gated, geofusion)
-
-
-def test_soft_anchor_probabilities_are_per_face_distributions_behind_the_default_labels():
-    probabilities = soft_anchor_probabilities(WEAK_PROMPT_SCORES, WEAK_PROMPT_LEVEL, np.ones(6))
-    np.testing.assert_allclose(probabilities.sum(axis=1), 1.0)
-    # the handle's anchored part A: share 0.7 plus the full prior 1, normalised by 2
-    np.testing.assert_allclose(probabilities[0], [0.85, 0.145, 0.005])
-    refined, labels = refine_labels(SCORES, PARTITIONS, AREAS)
-    np.testing.assert_array_equal(soft_anchor_probabilities(refined, PARTITIONS, AREAS).argmax(axis=1), labels)
-    silent = soft_anchor_probabilities(np.zeros((2, 2)), [Partition(0.1, np.array([0, 1]))], np.ones(2))
-    np.testing.assert_array_equal(silent, np.zeros((2, 2)))  # no vote, no prior: no distribution
 
 
 def test_anchoring_modes():
