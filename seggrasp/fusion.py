@@ -70,7 +70,7 @@ So on each level only the prompts whose share reaches ANCHOR_MIN_RATIO times the
 part take part in the assignment; the others get no prior there and keep their GeoFusion faces (the fallback to
 GeoFusion, per prompt and level).
 Measured against GeoFusion, hard and ungated soft anchoring on the twin (with its multi-part categories) and on the
-labelled YCB scans over twenty detector/camera seeds: `python bench/bench_seg.py --quality --meshes twin` and
+labelled YCB scans over twenty detector/camera seeds: `python bench/bench_seg.py --quality --seeds 20 --meshes twin` and
 `--meshes ycb` (results in docs/results/seg-quality-*.md).
 """
 
