@@ -496,7 +496,11 @@ def test_scan_thresholds_run_coarse_first_and_nothing_finer_than_a_crowded_parti
     assert sorted(select_scan_thresholds(grid, evaluate, max_parts=30)) == [0.06, 0.11, 0.25]
     batches.clear()
     uncapped = select_scan_thresholds(grid, evaluate, max_parts=1000)
-    assert batches == [[0.06, 0.11, 0.25], [0.04], [0.02]] and min(uncapped) == 0.02  # the finest grid value last
+    # 33 parts at 0.06: two more doublings stay under the cap, so 0.04 and the finest grid value run together
+    assert batches == [[0.06, 0.11, 0.25], [0.04, 0.02]] and min(uncapped) == 0.02
+    batches.clear()
+    assert min(select_scan_thresholds(grid, evaluate, max_parts=60)) == 0.02  # 66 expected at 0.04: one at a time
+    assert batches == [[0.06, 0.11, 0.25], [0.04], [0.02]]
     batches.clear()
     assert sorted(select_scan_thresholds(grid, evaluate, max_parts=1000, max_runs=4)) == [0.04, 0.06, 0.11, 0.25]
     batches.clear()
