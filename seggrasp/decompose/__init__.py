@@ -30,7 +30,7 @@ Scans (fast mode). A mesh over MAX_COACD_FACES faces, or one that is not a close
 mesh), is decomposed as a scan: an open one goes to CoACD as a closed shell around it (`remesh.closed_shell`)
 instead of through CoACD's slow preprocessing; its working mesh gets up to SCAN_SIMPLIFY_PASSES manifold3d passes;
 CoACD searches one cut deep (SCAN_COACD); the thresholds SCAN_FIRST_ROUND run as one parallel batch, then SCAN_FINER
-one at a time from coarse to fine while the finest partition has fewer than SCAN_MAX_PARTS parts, without bisection
+from coarse to fine while the finest partition has fewer than SCAN_MAX_PARTS parts, without bisection
 (`sweep.select_scan_thresholds`); its cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces (the twin) are decomposed as above and
 keep their keys. Measured: docs/results/cold-segmentation.md.
 
