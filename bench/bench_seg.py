@@ -289,6 +289,21 @@ def run_mesh(item: LabelledMesh, modes: list[str], args, done: set) -> list[dict
     return records
 
 
+def paired_difference(values: Sequence[float], baseline: Sequence[float]) -> tuple[float, float, int]:
+    """Mean of the paired differences values - baseline, its standard error (nan for one pair) and the pair count."""
+    diffs = np.subtract(values, baseline, dtype=np.float64)
+    if diffs.ndim != 1 or diffs.size == 0:
+        raise ValueError(f"paired_difference needs two equally long non-empty lists, got {np.shape(diffs)}")
+    se = float(diffs.std(ddof=1) / np.sqrt(diffs.size)) if diffs.size > 1 else float("nan")
+    return float(diffs.mean()), se, int(diffs.size)
+
+
+def _per_seed_full(fast: dict, ref: dict, names: Sequence[str]) -> tuple[list[float], list[float]]:
+    """Per-seed full mIoU of the records `fast[name]` and `ref[name]`, concatenated over `names`."""
+    return ([v for n in names for v in fast[n]["miou_per_seed"]["full"]],
+            [v for n in names for v in ref[n]["miou_per_seed"]["full"]])
+
+
 def print_table(records: list[dict], modes: list[str]) -> None:
     print(f"\n{'mesh':24s} {'faces':>6s} {'mode':9s} {'render':>7s} {'vote':>6s} {'decomp':>8s} {'fusion':>7s} "
           f"{'total':>8s} {'peakMB':>7s} {'runs':>4s} {'parts':>5s} {'coarse':>7s} {'full':>6s} {'multi':>6s} "
@@ -324,10 +339,8 @@ def print_table(records: list[dict], modes: list[str]) -> None:
         gap = np.mean([fast[n]["miou"]["full"] for n in common]) - np.mean([ref[n]["miou"]["full"] for n in common])
         spread = ""
         if all(len(fast[n].get("detector_seeds", [])) == len(ref[n].get("detector_seeds", [])) > 1 for n in common):
-            diffs = np.concatenate([np.subtract(fast[n]["miou_per_seed"]["full"], ref[n]["miou_per_seed"]["full"])
-                                    for n in common])
-            spread = (f" (paired standard error {100 * diffs.std(ddof=1) / np.sqrt(diffs.size):.2f} points over "
-                      f"{diffs.size} mesh x detector-seed pairs)")
+            _, se, pairs = paired_difference(*_per_seed_full(fast, ref, common))
+            spread = f" (paired standard error {100 * se:.2f} points over {pairs} mesh x detector-seed pairs)"
         print(f"TOTAL over {len(common)} meshes: speed-up decomposition {dec:.1f}x, whole segmentation {tot:.1f}x "
               f"(detector excluded); mean mIoU(full) {modes[0]} - {modes[1]} = {100 * gap:+.2f} points{spread}")
 
@@ -350,12 +363,9 @@ def cold_report(records: list[dict], command: str) -> str:
     ref = {r["mesh"]: r for r in records if r["mode"] == "reference"}
     common = sorted(set(fast) & set(ref))
     if common:
-        diffs = np.concatenate([np.subtract(fast[n]["miou_per_seed"]["full"], ref[n]["miou_per_seed"]["full"])
-                                for n in common])
-        se = diffs.std(ddof=1) / np.sqrt(diffs.size) if diffs.size > 1 else float("nan")
-        lines += ["", f"Full GeoFusion mIoU, fast - reference, on {', '.join(common)}: "
-                  f"{100 * diffs.mean():+.2f} points "
-                  f"(paired standard error {100 * se:.2f} points over {diffs.size} mesh x detector-seed pairs)."]
+        gap, se, pairs = paired_difference(*_per_seed_full(fast, ref, common))
+        lines += ["", f"Full GeoFusion mIoU, fast - reference, on {', '.join(common)}: {100 * gap:+.2f} points "
+                  f"(paired standard error {100 * se:.2f} points over {pairs} mesh x detector-seed pairs)."]
     return "\n".join(lines + ["", f"Measured by `{command}`."]) + "\n"
 
 
@@ -410,6 +420,10 @@ def rescore(items: list[LabelledMesh], modes: list[str], args) -> None:
     print(f"\nmean over meshes and seeds 0..{args.seeds - 1} (preset {args.preset}):")
     for mode in modes:
         print(f"  {mode:9s} " + " ".join(f"{m} {np.mean(table[mode][m]):.3f}" for m in REFINE_MODES))
+    if len(modes) == 2 and table[modes[0]]["full"]:
+        gap, se, pairs = paired_difference(table[modes[0]]["full"], table[modes[1]]["full"])
+        print(f"full mIoU {modes[0]} - {modes[1]}: {100 * gap:+.2f} points (paired standard error {100 * se:.2f} "
+              f"points over {pairs} mesh x detector-seed pairs)")
 
 
 def method_labels(scores: np.ndarray, partitions, areas: np.ndarray,

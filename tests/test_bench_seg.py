@@ -1,5 +1,6 @@
 """bench/bench_seg.py: a cold benchmark sweep runs CoACD (never served from the bundled twin caches)."""
 
+import re
 import sys
 from pathlib import Path
 
@@ -111,3 +112,38 @@ def test_quality_seed_and_gate_options_are_checked(capsys):
         with pytest.raises(SystemExit):
             bench_seg.main(["--meshes", "twin", "--quality", *bad])
     assert "--min-ratios must lie in [0, 1]" in capsys.readouterr().err
+
+
+def test_paired_difference_gives_mean_standard_error_and_pairs():
+    gap, se, pairs = bench_seg.paired_difference([0.5, 0.7, 0.6], [0.4, 0.4, 0.6])
+    # differences 0.1, 0.3, 0.0: mean 0.1333, sample sd 0.1528, SE 0.1528 / sqrt(3)
+    assert gap == pytest.approx(0.4 / 3) and se == pytest.approx(np.std([0.1, 0.3, 0.0], ddof=1) / np.sqrt(3))
+    assert pairs == 3
+    assert np.isnan(bench_seg.paired_difference([0.5], [0.4])[1])
+    with pytest.raises(ValueError, match="equally long"):
+        bench_seg.paired_difference([], [])
+
+
+def test_rescore_prints_the_paired_gap_of_two_stored_sweeps(monkeypatch, tmp_path, capsys):
+    item = bench_seg.primitive_meshes()[1]  # the hammer: handle and head
+    n = len(item.mesh.faces)
+    folder = tmp_path / "bench_arrays"
+    folder.mkdir()
+    right = item.labels.face_labels.astype(np.int32)
+    np.savez(folder / f"{item.name}_fast.npz", thresholds=np.array([0.1]), partitions=right[None])
+    np.savez(folder / f"{item.name}_before.npz", thresholds=np.array([0.1]), partitions=np.zeros((1, n), np.int32))
+
+    def scores(item, preset, seed, n_views, image_size):  # the head voted for everywhere, the handle on its half
+        s = np.zeros((n, 2))
+        s[:, 1] = 1.0
+        s[item.labels.face_labels == 0, 0] = 2.0 if seed == 0 else 0.5
+        return s, {}
+
+    monkeypatch.setattr(bench_seg, "coarse_scores", scores)
+    bench_seg.main(["--meshes", item.name, "--rescore", "--rescore-modes", "fast,before", "--seeds", "2",
+                    "--out", str(tmp_path / "bench.jsonl")])
+    out = capsys.readouterr().out
+    gap = re.search(r"full mIoU fast - before: ([-+][0-9.]+) points \(paired standard error ([0-9.]+) points over 2 ", out)
+    assert gap is not None, out
+    # the true partition beats a single part under both seeds' scores
+    assert float(gap.group(1)) > 10 and float(gap.group(2)) >= 0

@@ -20,6 +20,7 @@ from seggrasp.decompose import (
     decompose_sweep,
     dedupe_partitions,
     map_faces_to_hulls,
+    select_scan_thresholds,
     select_thresholds,
     set_coacd_log_level,
 )
@@ -299,8 +300,11 @@ def test_fast_mode_decomposes_an_open_mesh_through_a_closed_shell_without_coacd_
                     workers=1)
     (on_closed, on_open, on_open_reference) = logged_calls(log)
     assert on_closed[1]["preprocess_mode"] == "off" and on_closed[2] < len(closed.faces)
+    # The closed (twin-like) mesh keeps the fast settings of the bundled caches; the scan searches one cut deep.
+    assert on_closed[1] == config.coacd_params() == dict(decompose.FAST_COACD, seed=0)
+    assert on_closed[1]["mcts_max_depth"] == 2 and on_open[1]["mcts_max_depth"] == 1
     # Fast mode: CoACD gets a closed shell around the open mesh, so it needs no preprocessing of its own.
-    assert on_open[1] == config.coacd_params() and on_open[2] != len(opened.faces)
+    assert on_open[1] == config.coacd_params(scan=True) and on_open[2] != len(opened.faces)
     assert partition.part_of_face.shape == (len(opened.faces),)
     # The reference mode stays literal: the open mesh itself, CoACD's preprocessing on.
     assert on_open_reference[1]["preprocess_mode"] == "auto" and on_open_reference[2] == len(opened.faces)
@@ -477,24 +481,41 @@ def test_the_face_limit_is_in_the_cache_key_only_of_meshes_above_it(monkeypatch,
     assert [p.name for p in (tmp_path / "big").glob("*.npz")] == [f"{key}.npz"]
 
 
-def test_part_cap_runs_coarse_first_and_nothing_finer_than_a_crowded_partition():
+def test_scan_thresholds_run_coarse_first_and_nothing_finer_than_a_crowded_partition():
     grid = decompose.FAST_THRESHOLDS
     batches = []
 
-    def evaluate(thresholds):  # finer thresholds give more parts: 0.04 -> 50, 0.02 -> 100
+    def evaluate(thresholds):  # finer thresholds give more parts: 0.06 -> 33, 0.04 -> 50, 0.02 -> 100
         batches.append(list(thresholds))
         return {t: canonical_parts(np.arange(400) % int(round(2 / t))) for t in thresholds}
 
-    capped = select_thresholds(grid, evaluate, max_runs=5, max_parts=40)
-    assert 0.02 not in [t for batch in batches for t in batch]
-    assert min(capped) == 0.04 and len(capped) <= 5
-    assert 0.02 not in batches[0]  # the finest waits for the coarse runs
+    capped = select_scan_thresholds(grid, evaluate, max_parts=40)
+    assert batches == [[0.06, 0.11, 0.25], [0.04]]  # one parallel round, then finer one at a time until crowded
+    assert sorted(capped) == [0.04, 0.06, 0.11, 0.25]
     batches.clear()
-    uncapped = select_thresholds(grid, evaluate, max_runs=5)
-    assert 0.02 in uncapped and 0.02 in batches[0]
+    assert sorted(select_scan_thresholds(grid, evaluate, max_parts=30)) == [0.06, 0.11, 0.25]
     batches.clear()
-    assert 0.02 in select_thresholds(grid, evaluate, max_runs=5, max_parts=200)  # under the cap: run, one round later
-    assert 0.02 not in batches[0] and 0.02 in batches[1]
+    uncapped = select_scan_thresholds(grid, evaluate, max_parts=1000)
+    # 33 parts at 0.06: two more doublings stay under the cap, so 0.04 and the finest grid value run together
+    assert batches == [[0.06, 0.11, 0.25], [0.04, 0.02]] and min(uncapped) == 0.02
+    batches.clear()
+    assert min(select_scan_thresholds(grid, evaluate, max_parts=60)) == 0.02  # 66 expected at 0.04: one at a time
+    assert batches == [[0.06, 0.11, 0.25], [0.04], [0.02]]
+    batches.clear()
+    assert sorted(select_scan_thresholds(grid, evaluate, max_parts=1000, max_runs=4)) == [0.04, 0.06, 0.11, 0.25]
+    batches.clear()
+    custom = select_scan_thresholds((0.01, 0.05, 0.1, 0.3), evaluate, max_parts=1000)
+    assert batches == [[0.05, 0.1, 0.3], [0.01]]  # nearest grid values; the finest always tried last
+    assert sorted(custom) == [0.01, 0.05, 0.1, 0.3]
+
+
+def test_scan_coacd_settings_apply_to_fast_mode_scans_only():
+    fast, reference = DecompositionConfig(), DecompositionConfig(mode="reference")
+    assert fast.coacd_params(scan=True) == dict(decompose.FAST_COACD, **decompose.SCAN_COACD, seed=0)
+    assert fast.coacd_params() == dict(decompose.FAST_COACD, seed=0)
+    assert reference.coacd_params(scan=True) == reference.coacd_params() == dict(decompose.COACD_DEFAULTS, seed=0)
+    assert DecompositionConfig(coacd={"mcts_max_depth": 3}).coacd_params(scan=True)["mcts_max_depth"] == 3
+    assert fast.run_key("0" * 64, 0.05) != fast.run_key("0" * 64, 0.05, scan=True)
 
 
 def test_only_scans_get_the_part_cap(monkeypatch, tmp_path):

@@ -29,8 +29,9 @@ Modes (`DecompositionConfig.mode`):
 Scans (fast mode). A mesh over MAX_COACD_FACES faces, or one that is not a closed manifold (a scan, a depth-fusion
 mesh), is decomposed as a scan: an open one goes to CoACD as a closed shell around it (`remesh.closed_shell`)
 instead of through CoACD's slow preprocessing; its working mesh gets up to SCAN_SIMPLIFY_PASSES manifold3d passes;
-the thresholds run from coarse to fine and none finer than a partition of SCAN_MAX_PARTS parts or more is run; its
-cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces (the twin) are decomposed as above and
+CoACD searches one cut deep (SCAN_COACD); the thresholds SCAN_FIRST_ROUND run as one parallel batch, then SCAN_FINER
+from coarse to fine while the finest partition has fewer than SCAN_MAX_PARTS parts, without bisection
+(`sweep.select_scan_thresholds`); its cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces (the twin) are decomposed as above and
 keep their keys. Measured: docs/results/cold-segmentation.md.
 
 Caching. Every CoACD run is cached on disk under a key hashing the mesh geometry (`seggrasp.mesh.mesh_hash`), the
@@ -65,6 +66,9 @@ from seggrasp.decompose.config import (
     PAPER_THRESHOLDS,
     PREPROCESS_MODES,
     RUN_TIMEOUT_S,
+    SCAN_COACD,
+    SCAN_FINER,
+    SCAN_FIRST_ROUND,
     SCAN_MAX_PARTS,
     SCAN_RECIPE,
     SCAN_SIMPLIFY_PASSES,
@@ -72,16 +76,23 @@ from seggrasp.decompose.config import (
 )
 from seggrasp.decompose.mapping import Partition, canonical_parts, dedupe_partitions, hull_planes, map_faces_to_hulls
 from seggrasp.decompose.remesh import closed_shell
-from seggrasp.decompose.sweep import SweepStats, SweepTimeout, decompose_sweep, select_thresholds
+from seggrasp.decompose.sweep import (
+    SweepStats,
+    SweepTimeout,
+    decompose_sweep,
+    select_scan_thresholds,
+    select_thresholds,
+)
 from seggrasp.decompose.workers import params_for, run_coacd_hulls, set_coacd_log_level, simplify
 from seggrasp.mesh import mesh_hash
 
 __all__ = [
     "ASSET_CACHE_DIR", "COACD_DEFAULTS", "COACD_LOG_LEVELS", "CONTAINMENT_TOLERANCE", "FAST_ANCHORS", "FAST_COACD",
     "FAST_MAX_RUNS", "FAST_SIMPLIFY_TOLERANCE", "FAST_THRESHOLDS", "MAPPING_VERSION", "MAX_COACD_FACES", "MODES",
-    "PAPER_THRESHOLDS", "PREPROCESS_MODES", "RUN_TIMEOUT_S", "SCAN_MAX_PARTS", "SCAN_RECIPE", "SCAN_SIMPLIFY_PASSES",
+    "PAPER_THRESHOLDS", "PREPROCESS_MODES", "RUN_TIMEOUT_S", "SCAN_COACD", "SCAN_FINER", "SCAN_FIRST_ROUND",
+    "SCAN_MAX_PARTS", "SCAN_RECIPE", "SCAN_SIMPLIFY_PASSES",
     "DecompositionConfig", "closed_shell", "Partition", "SweepStats",
     "SweepTimeout", "canonical_parts", "decompose_sweep", "dedupe_partitions", "default_cache_dir", "hull_planes",
-    "map_faces_to_hulls", "mesh_hash", "params_for", "run_coacd_hulls", "select_thresholds", "set_coacd_log_level",
+    "map_faces_to_hulls", "mesh_hash", "params_for", "run_coacd_hulls", "select_scan_thresholds", "select_thresholds", "set_coacd_log_level",
     "simplify",
 ]

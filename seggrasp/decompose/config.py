@@ -61,15 +61,23 @@ RUN_TIMEOUT_S = {"fast": 60.0, "reference": 600.0}
 #: CoACD never sees more faces than this: a larger working mesh is simplified more coarsely, then decimated, first
 #: (bounded time and memory; a fast-mode run on a 20k-face working mesh took over a minute).
 MAX_COACD_FACES = 10_000
-#: Fast mode on a scan (a mesh over MAX_COACD_FACES, or one that is not a closed manifold): the thresholds run from
-#: coarse to fine, and none finer than one whose partition already has this many parts is run (on the YCB mug the
-#: 0.02 run, 317 parts, cost more CPU time than the four others together; docs/results/cold-segmentation.md).
-SCAN_MAX_PARTS = 100
+#: Fast mode on a scan (a mesh over MAX_COACD_FACES, or one that is not a closed manifold): the grid values nearest
+#: SCAN_FIRST_ROUND (and the coarsest) run first, in parallel; then the values nearest SCAN_FINER (and the finest),
+#: from coarse to fine, only while the finest partition so far has fewer than SCAN_MAX_PARTS parts (those expected to
+#: stay under it run together; `seggrasp.decompose.sweep.select_scan_thresholds`); no bisection. A run's CPU time grows with its part count, and on thin-walled scans (the YCB mug, drill, a perceived
+#: mug) the finer runs cost most while leaving full-GeoFusion mIoU unchanged (docs/results/cold-segmentation.md).
+SCAN_FIRST_ROUND: tuple[float, ...] = (0.06, 0.11, 0.25)
+SCAN_FINER: tuple[float, ...] = (0.04, 0.02)
+SCAN_MAX_PARTS = 50
 #: manifold3d simplification passes of a scan's working mesh (`seggrasp.decompose.workers.simplify`).
 SCAN_SIMPLIFY_PASSES = 3
-#: Bump when the working mesh of a scan changes (closed shell, part cap): old cache entries of scans then no longer
-#: match. Twin-like meshes (closed, at most MAX_COACD_FACES faces) keep their keys.
-SCAN_RECIPE = 1
+#: Fast mode on a scan: CoACD's tree search one cut deep instead of two (on top of FAST_COACD). On the thin-walled
+#: YCB mug, drill and perceived mug it halved the CPU time of a run at the same mIoU; lighter searches (fewer
+#: iterations or nodes) were pathological on an open tube's shell (docs/results/cold-segmentation.md).
+SCAN_COACD = dict(mcts_max_depth=1)
+#: Bump when the working mesh of a scan or its runs change (closed shell, part cap, SCAN_COACD): old cache entries of
+#: scans then no longer match. Twin-like meshes (closed, at most MAX_COACD_FACES faces) keep their keys.
+SCAN_RECIPE = 2
 
 
 @dataclass(frozen=True)
@@ -130,9 +138,12 @@ class DecompositionConfig:
         if not (0.0 <= self.effective_simplify_tolerance < 0.1):
             raise ValueError(f"simplify_tolerance must be in [0, 0.1), got {self.simplify_tolerance}")
 
-    def coacd_params(self) -> dict:
-        """Keyword arguments for `coacd.run_coacd` except `threshold` (and with the seed)."""
+    def coacd_params(self, scan: bool = False) -> dict:
+        """Keyword arguments for `coacd.run_coacd` except `threshold` (and with the seed); `scan`: for a mesh decomposed
+        as a scan (fast mode only: SCAN_COACD on top of the mode's settings, below the config's own `coacd`)."""
         params = dict(COACD_DEFAULTS if self.mode == "reference" else FAST_COACD)
+        if scan and self.mode == "fast":
+            params.update(SCAN_COACD)
         params.update(dict(self.coacd))
         params["seed"] = int(self.seed)
         return params
@@ -172,7 +183,7 @@ class DecompositionConfig:
             "mesh": mesh_digest,
             "threshold": round(float(threshold), 6),
             "coacd": {k: (v if isinstance(v, (int, float, str)) else str(v)) for k, v in
-                      sorted(self.coacd_params().items())},
+                      sorted(self.coacd_params(scan).items())},
             "simplify_tolerance": self.effective_simplify_tolerance,
             "mapping": MAPPING_VERSION,
         }

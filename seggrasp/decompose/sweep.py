@@ -19,6 +19,8 @@ from seggrasp.decompose.config import (
     ASSET_CACHE_DIR,
     FAST_ANCHORS,
     MAX_COACD_FACES,
+    SCAN_FINER,
+    SCAN_FIRST_ROUND,
     SCAN_SIMPLIFY_PASSES,
     DecompositionConfig,
 )
@@ -44,12 +46,15 @@ class SweepStats:
     timed_out: list[float] = dataclasses.field(default_factory=list)
 
 
+def _nearest(grid: Sequence[float], value: float) -> int:
+    return int(np.argmin([abs(t - value) for t in grid]))
+
+
 def select_thresholds(
     grid: Sequence[float],
     evaluate: Callable[[list[float]], dict[float, np.ndarray]],
     anchors: Sequence[float] = FAST_ANCHORS,
     max_runs: int | None = None,
-    max_parts: int | None = None,
 ) -> dict[float, np.ndarray]:
     """Find every distinct partition of `grid` while running few thresholds.
 
@@ -58,43 +63,67 @@ def select_thresholds(
     grid values nearest to `anchors` are evaluated; then, in rounds, the grid value nearest the midpoint of every
     interval between consecutive evaluated thresholds whose partitions differ. An interval whose two ends agree is
     assumed constant. With `max_runs`, the widest differing intervals are split first and the search stops after
-    that many evaluations. With `max_parts`, the finest grid value waits for the first batch, and no threshold below
-    one whose partition has `max_parts` parts or more is run (finer partitions only have more parts). Returns the
-    evaluated {threshold: partition}.
+    that many evaluations. Returns the evaluated {threshold: partition}.
     """
     grid = sorted(float(t) for t in grid)
-    chosen = {0, len(grid) - 1}
-    for anchor in anchors:
-        chosen.add(int(np.argmin([abs(t - anchor) for t in grid])))
+    chosen = {0, len(grid) - 1} | {_nearest(grid, anchor) for anchor in anchors}
     results: dict[int, np.ndarray] = {}
     tried: set[int] = set()
     budget = len(grid) if max_runs is None else max(int(max_runs), 2)
     batch = sorted(chosen)
     if len(batch) > budget:  # keep the two ends and the anchors nearest the fine end
         batch = sorted([0, len(grid) - 1] + [i for i in batch if i not in (0, len(grid) - 1)][: budget - 2])
-    deferred = batch[:1] if max_parts is not None and len(batch) > 1 else []
-    batch = batch[len(deferred):]
-    floor = 0  # no grid index below this one is run
     while batch:
         found = evaluate([grid[i] for i in batch])
         tried.update(batch)
         results.update({i: found[grid[i]] for i in batch if grid[i] in found})
-        crowded = [i for i, parts in results.items() if max_parts is not None and parts.max() + 1 >= max_parts]
-        if crowded and max(crowded) > floor:
-            floor = max(crowded)
-            logger.info("decomposition: %d parts at threshold %.2f (cap %d): no finer threshold is run",
-                        results[floor].max() + 1, grid[floor], max_parts)
-        done = sorted(i for i in results if i >= floor)
+        done = sorted(results)
         splits = sorted((low - high, low, high) for low, high in zip(done, done[1:])
                         if high - low > 1 and not np.array_equal(results[low], results[high]))
-        batch = [i for i in deferred if i >= floor and i not in tried]
-        deferred = []
+        batch = []
         for _, low, high in splits:
             untried = [i for i in range(low + 1, high) if i not in tried]
             if untried and len(tried) + len(batch) < budget:
                 batch.append(min(untried, key=lambda i: (abs(i - (low + high) / 2), i)))
         batch.sort()
     return {grid[i]: parts for i, parts in results.items()}
+
+
+def select_scan_thresholds(
+    grid: Sequence[float],
+    evaluate: Callable[[list[float]], dict[float, np.ndarray]],
+    max_parts: int,
+    first: Sequence[float] = SCAN_FIRST_ROUND,
+    finer: Sequence[float] = SCAN_FINER,
+    max_runs: int | None = None,
+) -> dict[float, np.ndarray]:
+    """The thresholds of a scan, coarse to fine (`evaluate` as in `select_thresholds`).
+
+    The grid values nearest `first` and the coarsest run as one batch; then the values nearest `finer` below them,
+    and the finest grid value, from coarse to fine while the finest partition so far has fewer than `max_parts` parts
+    (a run's time grows with its part count) and fewer than `max_runs` thresholds were tried. Each further step is
+    expected to double the part count (measured: 1.4-2x per step), so the steps whose expected count stays below
+    `max_parts` run together as one batch. Returns the evaluated {threshold: partition}.
+    """
+    grid = sorted(float(t) for t in grid)
+    batch = sorted({len(grid) - 1} | {_nearest(grid, t) for t in first})
+    steps = sorted(({0} | {_nearest(grid, t) for t in finer}) - set(batch), reverse=True)
+    steps = [i for i in steps if i < batch[0]]
+    budget = len(grid) if max_runs is None else max(int(max_runs), 1)
+    results = evaluate([grid[i] for i in batch[-budget:]])
+    tried = min(len(batch), budget)
+    while steps and tried < budget:
+        parts = results[min(results)].max() + 1 if results else 1
+        if parts >= max_parts:
+            logger.info("decomposition: %d parts at threshold %.2f (cap %d): no finer threshold is run",
+                        parts, min(results), max_parts)
+            break
+        count = 1
+        while count < min(len(steps), budget - tried) and parts * 2 ** count < max_parts:
+            count += 1
+        results.update(evaluate([grid[i] for i in steps[:count]]))
+        steps, tried = steps[count:], tried + count
+    return results
 
 
 class _Sweep:
@@ -110,7 +139,6 @@ class _Sweep:
         self.n_faces = len(mesh.faces)
         self.centroids = np.asarray(mesh.triangles_center, dtype=np.float64)
         self.scale = float(np.linalg.norm(mesh.extents))
-        self.params = config.coacd_params()
         self.face_limit = MAX_COACD_FACES if self.n_faces > MAX_COACD_FACES else None
         self.working: tuple[np.ndarray, np.ndarray, bool] | None = None
         # A scan: over the face limit, or (checked only when it is small, where it is cheap) not a closed manifold.
@@ -118,6 +146,7 @@ class _Sweep:
         self.scan = config.mode == "fast" and (self.face_limit is not None or not runner.is_closed_manifold(
             np.asarray(mesh.vertices), np.asarray(mesh.faces)))
         self.max_parts = config.effective_scan_max_parts if self.scan else None
+        self.params = config.coacd_params(self.scan)
 
     def evaluate(self, thresholds: list[float]) -> dict[float, np.ndarray]:
         """{threshold: part_of_face} from the cache or from CoACD; thresholds whose run timed out are left out."""
@@ -215,9 +244,11 @@ def decompose_sweep(
     writable = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     sweep = _Sweep(mesh, config, writable, bundled, workers, stats)
     started = time.perf_counter()
-    if config.effective_adaptive:
-        evaluated = select_thresholds(config.thresholds, sweep.evaluate, max_runs=config.effective_max_runs,
-                                      max_parts=sweep.max_parts)
+    if config.effective_adaptive and sweep.max_parts is not None:
+        evaluated = select_scan_thresholds(config.thresholds, sweep.evaluate, sweep.max_parts,
+                                           max_runs=config.effective_max_runs)
+    elif config.effective_adaptive:
+        evaluated = select_thresholds(config.thresholds, sweep.evaluate, max_runs=config.effective_max_runs)
     else:
         evaluated = sweep.evaluate(list(config.thresholds))
     if not evaluated:
