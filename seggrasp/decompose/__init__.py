@@ -31,8 +31,8 @@ mesh), is decomposed as a scan: an open one goes to CoACD as a closed shell arou
 instead of through CoACD's slow preprocessing; its working mesh gets up to SCAN_SIMPLIFY_PASSES manifold3d passes;
 CoACD searches one cut deep (SCAN_COACD); the thresholds SCAN_FIRST_ROUND run as one parallel batch, then SCAN_FINER
 from coarse to fine while the finest partition has fewer than SCAN_MAX_PARTS parts, without bisection
-(`sweep.select_scan_thresholds`); its cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces (the twin) are decomposed as above and
-keep their keys. Measured: docs/results/cold-segmentation.md.
+(`sweep.select_scan_thresholds`); its cache keys carry SCAN_RECIPE. Closed meshes of at most MAX_COACD_FACES faces
+(the twin) are decomposed as above and keep their keys. Measured: docs/results/cold-segmentation.md.
 
 Caching. Every CoACD run is cached on disk under a key hashing the mesh geometry (`seggrasp.mesh.mesh_hash`), the
 threshold, every CoACD parameter, the decimation target and the mapping version; the file holds the compact
@@ -93,6 +93,6 @@ __all__ = [
     "SCAN_MAX_PARTS", "SCAN_RECIPE", "SCAN_SIMPLIFY_PASSES",
     "DecompositionConfig", "closed_shell", "Partition", "SweepStats",
     "SweepTimeout", "canonical_parts", "decompose_sweep", "dedupe_partitions", "default_cache_dir", "hull_planes",
-    "map_faces_to_hulls", "mesh_hash", "params_for", "run_coacd_hulls", "select_scan_thresholds", "select_thresholds", "set_coacd_log_level",
-    "simplify",
+    "map_faces_to_hulls", "mesh_hash", "params_for", "run_coacd_hulls", "select_scan_thresholds", "select_thresholds",
+    "set_coacd_log_level", "simplify",
 ]

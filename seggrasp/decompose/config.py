@@ -64,8 +64,9 @@ MAX_COACD_FACES = 10_000
 #: Fast mode on a scan (a mesh over MAX_COACD_FACES, or one that is not a closed manifold): the grid values nearest
 #: SCAN_FIRST_ROUND (and the coarsest) run first, in parallel; then the values nearest SCAN_FINER (and the finest),
 #: from coarse to fine, only while the finest partition so far has fewer than SCAN_MAX_PARTS parts (those expected to
-#: stay under it run together; `seggrasp.decompose.sweep.select_scan_thresholds`); no bisection. A run's CPU time grows with its part count, and on thin-walled scans (the YCB mug, drill, a perceived
-#: mug) the finer runs cost most while leaving full-GeoFusion mIoU unchanged (docs/results/cold-segmentation.md).
+#: stay under it run together; `seggrasp.decompose.sweep.select_scan_thresholds`); no bisection. A run's CPU time
+#: grows with its part count, and on thin-walled scans (the YCB mug, drill, a perceived mug) the finer runs cost most
+#: while leaving full-GeoFusion mIoU unchanged (docs/results/cold-segmentation.md).
 SCAN_FIRST_ROUND: tuple[float, ...] = (0.06, 0.11, 0.25)
 SCAN_FINER: tuple[float, ...] = (0.04, 0.02)
 SCAN_MAX_PARTS = 50
