@@ -96,3 +96,40 @@ def test_the_engine_benchmark_table_gives_speedups_and_ray_s_overhead() -> None:
     assert "| Ray overhead over local, 1 worker(s) | +0.0 % |" in text
     assert "| Ray overhead over local, 2 worker(s) | +0.0 % |" in text
     assert "load average 2.0-3.0" in text
+
+
+def _mixed_rows() -> list[dict]:
+    """Slots of two requests: executed or not, with unknown contacts/success, first and later ranks."""
+    base = {"method": "m", "category": "thing", "seed": 0, "reachable": True, "detector": "simulated:typical",
+            "T_world_grasp": np.eye(4).tolist()}
+    slots = [  # (object, rank, executed, contacts_on_part, success)
+        ("a", 0, True, True, True), ("a", 1, True, True, False), ("a", 2, False, None, None),
+        ("b", 0, True, False, False), ("b", 1, True, None, None), ("b", 2, False, False, False),
+    ]
+    return [dict(base, object_id=o, prompt="handle", rank=k, executed=e, contacts_on_part=c, success=s)
+            for o, k, e, c, s in slots]
+
+
+def test_the_report_s_grasp_figures_are_the_interval_means_and_keep_their_values() -> None:
+    from sim.evaluate.report import grasp_metrics
+
+    rows = _mixed_rows()
+    figures = grasp_metrics(rows)
+    # hand-counted: all slots with a known value; top-1 = rank 0; executed-only = executed with a known value
+    assert figures["part_selection_all_slots"] == pytest.approx(2 / 4)
+    assert figures["success_all_slots"] == pytest.approx(1 / 4)
+    assert figures["success_top1"] == pytest.approx(1 / 2)
+    assert figures["part_selection"] == pytest.approx(2 / 3)
+    assert figures["success"] == pytest.approx(1 / 3)
+    intervals = method_intervals(rows, [], ["m"])["m"]
+    for name in GRASP_METRICS:
+        assert figures[name] == pytest.approx(intervals[name]["mean"]), name
+
+
+def test_the_report_and_the_intervals_share_one_metric_definition(monkeypatch) -> None:
+    from sim.evaluate.report import grasp_metrics
+
+    rows = _mixed_rows()
+    monkeypatch.setitem(GRASP_METRICS, "success_top1", lambda r: float(bool(r["success"])) if r["rank"] == 1 else None)
+    assert grasp_metrics(rows)["success_top1"] == pytest.approx(0.0)  # rank 1: one failure, one unknown
+    assert method_intervals(rows, [], ["m"])["m"]["success_top1"]["mean"] == pytest.approx(0.0)
