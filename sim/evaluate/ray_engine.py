@@ -5,9 +5,10 @@ locked, fsynced write per task), so resume, torn-line repair and duplicate refus
 whose worker process dies is retried by Ray from scratch (its records were only in the dead process's memory); one
 that still fails after `MAX_RETRIES` retries is reported as a crash, like an object that raised.
 
-The run's settings go to the object store once (`ray.put`) and every task gets a reference. The twin's objects and
-the bundled decompositions are not shipped: every Ray node runs the installed package, which holds them, and reads
-one object (a few MB at most) in a fraction of a second, against tens of seconds of simulation per task.
+The run's settings and each object of the run (its files and bundled decomposition entries, twin.py) go to the
+object store once (`ray.put`) and every task gets references, so a node needs the package's code but not its
+twin assets. The driver packs the objects while the local Ray instance starts (its start-up is mostly waiting on
+the processes it launches), and shuts the instance down while it writes the summary.
 """
 
 from __future__ import annotations
@@ -15,11 +16,14 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from sim.evaluate.config import RunConfig
 from sim.evaluate.records import JsonLines
 from sim.evaluate.runner import ObjectTask, Recorded, evaluate_object, make_tasks, worker_init
+from sim.evaluate.twin import TwinObject, pack
 
 LOG = logging.getLogger("sim.evaluate")
 #: Retries of a task whose worker process died (Ray's own retry; an exception inside a task is not retried: it is
@@ -28,12 +32,15 @@ MAX_RETRIES = 3
 #: Fault injection for the kill test: a path; the first task that finds it absent creates it (holding its pid) and
 #: kills its own worker process after evaluating, before returning its records.
 KILL_ONCE_ENV = "SEGGRASP_RAY_KILL_ONCE"
+_stopping: list[threading.Thread] = []  # a local instance being shut down behind the driver's back
 
 
-def _run_task(config: RunConfig, object_id: str, seed: int, recorded: Recorded, out: str) -> dict:
-    """One (object, seed) in a Ray worker: its status with the new records (never raises)."""
-    worker_init()
-    status = evaluate_object(ObjectTask(object_id, seed, config, out, recorded, parallel=True, collect=True))
+def _run_task(config: RunConfig, object_id: str, seed: int, recorded: Recorded, out: str, twin: TwinObject) -> dict:
+    """One (object, seed) in a Ray worker, on the shipped object `twin`: its status with the new records (never
+    raises)."""
+    worker_init(config.uses_torch)
+    task = ObjectTask(object_id, seed, config, out, recorded, parallel=True, collect=True, twin=twin)
+    status = evaluate_object(task)
     marker = os.environ.get(KILL_ONCE_ENV)
     if marker:
         try:
@@ -50,6 +57,8 @@ def _connect(workers: int, address: str | None) -> bool:
     """Join the cluster at `address`, or start a local instance with `workers` CPUs; True when started here."""
     import ray
 
+    while _stopping:  # the previous run's instance first
+        _stopping.pop().join()
     if ray.is_initialized():
         return False
     options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
@@ -71,11 +80,16 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
         on_status(status)
     if not tasks:
         return []
-    started_here = _connect(workers, address)
+    with ThreadPoolExecutor(1) as packer:  # ray.init must run on the main thread
+        packing = packer.submit(pack_objects, tasks, config.decomposition_seed)
+        started_here = _connect(workers, address)
+        twins = packing.result()
     try:
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_run_task)
         config_ref = ray.put(config)
-        pending = {remote.remote(config_ref, t.object_id, t.seed, t.recorded, t.out): t for t in tasks}
+        twin_refs = {object_id: ray.put(twin) for object_id, twin in twins.items()}
+        pending = {remote.remote(config_ref, t.object_id, t.seed, t.recorded, t.out, twin_refs[t.object_id]): t
+                   for t in tasks}
         crashes = []
         while pending:
             (ref,), _ = ray.wait(list(pending), num_returns=1)
@@ -90,5 +104,11 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
             crashes += on_status(status)
         return crashes
     finally:
-        if started_here:
-            ray.shutdown()
+        if started_here:  # stopping the local instance waits on its processes: the driver goes on meanwhile
+            _stopping.append(threading.Thread(target=ray.shutdown, name="ray-shutdown"))
+            _stopping[-1].start()
+
+
+def pack_objects(tasks: list[ObjectTask], decomposition_seed: int) -> dict[str, TwinObject]:
+    """Each object of `tasks` packed once (whatever its number of seeds), in task order."""
+    return {object_id: pack(object_id, decomposition_seed) for object_id in dict.fromkeys(t.object_id for t in tasks)}
