@@ -17,9 +17,11 @@ import logging
 import os
 import signal
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+from seggrasp.io import atomic_write_json
 from sim.evaluate.config import RunConfig
 from sim.evaluate.records import JsonLines
 from sim.evaluate.runner import ObjectTask, Recorded, evaluate_object, make_tasks, worker_init
@@ -32,15 +34,39 @@ MAX_RETRIES = 3
 #: Fault injection for the kill test: a path; the first task that finds it absent creates it (holding its pid) and
 #: kills its own worker process after evaluating, before returning its records.
 KILL_ONCE_ENV = "SEGGRASP_RAY_KILL_ONCE"
+#: A JSON file to write the run's time stamps to (`python -m sim.evaluate.bench` sets it to see where Ray's time
+#: goes): the driver entering the engine, Ray connected, objects packed, each task's start and end in its worker and
+#: its arrival at the driver, the last task done, Ray stopped.
+TRACE_ENV = "SEGGRASP_RAY_TRACE"
 _stopping: list[threading.Thread] = []  # a local instance being shut down behind the driver's back
+
+
+class Trace:
+    """Time stamps (time.time()) of one Ray run, written to $SEGGRASP_RAY_TRACE when that is set."""
+
+    def __init__(self) -> None:
+        self.path = os.environ.get(TRACE_ENV)
+        self.stamps: dict[str, float] = {"engine": time.time()}
+        self.tasks: list[dict] = []
+        self.packed_bytes = 0
+
+    def mark(self, name: str) -> None:
+        self.stamps[name] = time.time()
+
+    def write(self) -> None:
+        if self.path:
+            atomic_write_json(self.path, {"stamps": self.stamps, "tasks": self.tasks,
+                                          "packed_bytes": self.packed_bytes})
 
 
 def _run_task(config: RunConfig, object_id: str, seed: int, recorded: Recorded, out: str, twin: TwinObject) -> dict:
     """One (object, seed) in a Ray worker, on the shipped object `twin`: its status with the new records (never
     raises)."""
+    started = time.time()
     worker_init(config.uses_torch)
     task = ObjectTask(object_id, seed, config, out, recorded, parallel=True, collect=True, twin=twin)
     status = evaluate_object(task)
+    status["worker"] = {"pid": os.getpid(), "started": started, "finished": time.time()}
     marker = os.environ.get(KILL_ONCE_ENV)
     if marker:
         try:
@@ -80,9 +106,11 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
         on_status(status)
     if not tasks:
         return []
+    trace = Trace()
     with ThreadPoolExecutor(1) as packer:  # ray.init must run on the main thread
-        packing = packer.submit(pack_objects, tasks, config.decomposition_seed)
+        packing = packer.submit(_pack_timed, tasks, config.decomposition_seed, trace)
         started_here = _connect(workers, address)
+        trace.mark("connected")
         twins = packing.result()
     try:
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_run_task)
@@ -99,14 +127,34 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
             except ray.exceptions.RayError as exc:  # the worker died more often than Ray retries
                 status = {"object_id": task.object_id, "seed": task.seed, "ok": False, "seconds": 0.0,
                           "error": f"{type(exc).__name__}: the Ray task failed", "traceback": str(exc)}
+            trace.tasks.append(dict(status.pop("worker", {}), received=time.time()))
             for name, records in status.pop("records", {}).items():
                 JsonLines(Path(task.out) / name).extend(records)
             crashes += on_status(status)
+        trace.mark("done")
         return crashes
     finally:
         if started_here:  # stopping the local instance waits on its processes: the driver goes on meanwhile
-            _stopping.append(threading.Thread(target=ray.shutdown, name="ray-shutdown"))
+            _stopping.append(threading.Thread(target=_stop, args=(trace,), name="ray-shutdown"))
             _stopping[-1].start()
+        else:
+            trace.write()
+
+
+def _stop(trace: Trace) -> None:
+    """Shut the local Ray instance down and write the trace."""
+    import ray
+
+    ray.shutdown()
+    trace.mark("stopped")
+    trace.write()
+
+
+def _pack_timed(tasks: list[ObjectTask], decomposition_seed: int, trace: Trace) -> dict[str, TwinObject]:
+    twins = pack_objects(tasks, decomposition_seed)
+    trace.mark("packed")
+    trace.packed_bytes = sum(t.size for t in twins.values())
+    return twins
 
 
 def pack_objects(tasks: list[ObjectTask], decomposition_seed: int) -> dict[str, TwinObject]:
