@@ -133,3 +133,27 @@ def test_the_report_and_the_intervals_share_one_metric_definition(monkeypatch) -
     monkeypatch.setitem(GRASP_METRICS, "success_top1", lambda r: float(bool(r["success"])) if r["rank"] == 1 else None)
     assert grasp_metrics(rows)["success_top1"] == pytest.approx(0.0)  # rank 1: one failure, one unknown
     assert method_intervals(rows, [], ["m"])["m"]["success_top1"]["mean"] == pytest.approx(0.0)
+
+
+def test_the_engine_benchmark_reports_ray_s_phases_and_rewrites_only_its_profile_s_section(tmp_path) -> None:
+    from sim.evaluate.bench import PHASES, report, write_section
+
+    times = {("local", 1): [10.0], ("local", 2): [6.0], ("ray", 1): [13.0], ("ray", 2): [8.0]}
+    stamps = {"engine": 101.0, "connected": 104.0, "packed": 101.5, "done": 112.0, "stopped": 113.5}
+    tasks = [{"started": 105.0, "finished": 108.0, "received": 108.25},
+             {"started": 108.5, "finished": 111.5, "received": 111.75}]
+    phase = {title: f(stamps, tasks, 2_000_000, 100.0) for title, f in PHASES}
+    text = report(times, [1.0], "bench", {("local", 1): [9.5]}, {("ray", 1): [phase]})
+    assert "| local | 1 | 10.0 | 10.0 | 9.5 |" in text and "| ray | 1 | 13.0 | 13.0 | — |" in text
+    rows = {line.split(" | ")[0][2:]: line.rsplit("|", 2)[1].strip() for line in text.splitlines()
+            if line.startswith("| ")}
+    values = [rows[title] for title, _ in PHASES]
+    assert values == ["1.00", "3.00", "0.50", "2.00", "1.00", "6.00", "0.25", "1.50"]
+    doc = tmp_path / "engines.md"
+    doc.write_text("# Engines\n\nprose\n")
+    write_section(doc, "--quick", "old quick\n")
+    write_section(doc, "--quick --seeds 0-4", "five seeds\n")
+    write_section(doc, "--quick", "new quick\n")
+    content = doc.read_text()
+    assert content.startswith("# Engines\n\nprose\n") and "old quick" not in content
+    assert content.index("new quick") < content.index("five seeds") and content.count("<!-- bench --quick -->") == 1

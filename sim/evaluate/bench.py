@@ -3,7 +3,10 @@ workers, measured side by side (the configurations take turns, round after round
 hits all of them alike); writes the table of medians, speedups and Ray's overhead, and where a Ray run's time goes
 (from the time stamps the Ray engine writes to $SEGGRASP_RAY_TRACE), to a Markdown file.
 
-    nice python -m sim.evaluate.bench --rounds 2 --write docs/results/evaluate-scale.md
+    nice python -m sim.evaluate.bench --rounds 2 --profile "--quick --seeds 0-1" --write docs/results/evaluate-scale.md
+
+`--write` puts the profile's section into the file between markers named after the profile (replacing that
+section, keeping the rest), so the sections of several profiles and the prose around them live in one file.
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ import argparse
 import json
 import os
 import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -24,17 +28,20 @@ from seggrasp.io import atomic_write_text
 from sim.evaluate.ray_engine import TRACE_ENV
 
 CONFIGS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
-#: Where a Ray run's wall time goes, from its trace: (row title, seconds from the trace and the process start).
+#: Where a Ray run's wall time goes, from its trace (ray_engine.Trace) and the process's start time t0.
 PHASES = (
-    ("driver start-up: interpreter, imports, arguments, output folder", lambda s, t, t0: s["engine"] - t0),
-    ("ray.init of the local instance (the objects are packed meanwhile)", lambda s, t, t0: s["connected"] - s["engine"]),
-    ("packing the run's objects, in a thread (overlapped)", lambda s, t, t0: s["packed"] - s["engine"]),
-    ("from ray.init's end to the first task's start in a worker (worker start-up, imports)",
-     lambda s, t, t0: min(x["started"] for x in t) - s["connected"]),
-    ("tasks in the workers (sum)", lambda s, t, t0: sum(x["finished"] - x["started"] for x in t)),
-    ("hand-over: a task's end in its worker to its records written (mean)",
-     lambda s, t, t0: statistics.mean(x["received"] - x["finished"] for x in t)),
-    ("last task done to Ray stopped (the summary is written meanwhile)", lambda s, t, t0: s["stopped"] - s["done"]),
+    ("driver start-up: interpreter, imports, arguments, output folder (s)", lambda s, t, b, t0: s["engine"] - t0),
+    ("ray.init of the local instance (s; the objects are packed meanwhile)",
+     lambda s, t, b, t0: s["connected"] - s["engine"]),
+    ("packing the run's objects, in a thread (s, overlapped)", lambda s, t, b, t0: s["packed"] - s["engine"]),
+    ("objects put in the object store, once each (MB)", lambda s, t, b, t0: b / 1e6),
+    ("ray.init's end to the first task's start in a worker: worker start-up, imports (s)",
+     lambda s, t, b, t0: min(x["started"] for x in t) - s["connected"]),
+    ("tasks in the workers (s, sum)", lambda s, t, b, t0: sum(x["finished"] - x["started"] for x in t)),
+    ("hand-over: a task's end in its worker to its records written (s, mean)",
+     lambda s, t, b, t0: statistics.mean(x["received"] - x["finished"] for x in t)),
+    ("last task done to Ray stopped (s; the summary is written meanwhile)",
+     lambda s, t, b, t0: s["stopped"] - s["done"]),
 )
 
 
@@ -56,7 +63,8 @@ def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> tu
     if engine != "ray":
         return seconds, cpu, {}
     recorded = json.loads(trace.read_text())
-    phases = {title: phase(recorded["stamps"], recorded["tasks"], wall_start) for title, phase in PHASES}
+    phases = {title: phase(recorded["stamps"], recorded["tasks"], recorded["packed_bytes"], wall_start)
+              for title, phase in PHASES}
     return seconds, None, phases
 
 
@@ -93,7 +101,6 @@ def report(times: dict[tuple[str, int], list[float]], loads: list[float], comman
             f"{f'{statistics.median(cpus[(engine, workers)]):.1f}' if cpus.get((engine, workers)) else '—'} |"
             for engine, workers in CONFIGS]
     lines = [
-        "# Evaluation engines: local processes vs Ray", "",
         f"Measured with `{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, on a 2-core machine "
         f"shared with other jobs: 1-minute load average {min(loads):.1f}-{max(loads):.1f} "
         f"(median {statistics.median(loads):.1f}) before the runs. Wall time of a whole `python -m sim.evaluate` "
@@ -108,7 +115,7 @@ def report(times: dict[tuple[str, int], list[float]], loads: list[float], comman
     ]
     ray_configs = [c for c in CONFIGS if phases.get(c)]
     if ray_configs:
-        lines += ["", "Where a Ray run's wall time goes (median over its runs, s; from the engine's time stamps):", "",
+        lines += ["", "Where a Ray run's wall time goes (median over its runs; the Ray engine's time stamps):", "",
                   f"| phase | {' | '.join(f'{e} x{w}' for e, w in ray_configs)} |",
                   "|---" * (1 + len(ray_configs)) + "|",
                   *(f"| {title} | " + " | ".join(f"{statistics.median(p[title] for p in phases[c]):.2f}"
@@ -120,19 +127,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.evaluate.bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--rounds", type=int, default=2, help="runs of each configuration (default 2)")
     parser.add_argument("--profile", default="--quick", help="arguments of the measured run (default --quick)")
-    parser.add_argument("--write", type=Path, help="write the table to this Markdown file")
+    parser.add_argument("--write", type=Path, help="write the profile's section into this Markdown file")
     args = parser.parse_args(argv)
     if args.rounds < 1:
         print("error: --rounds must be at least 1", file=sys.stderr)
         return 2
     times, loads, cpus, phases = measure(args.profile.split(), args.rounds)
     arguments = argv if argv is not None else sys.argv[1:]
-    command = ("nice " if os.nice(0) > 0 else "") + " ".join(["python -m sim.evaluate.bench", *arguments])
-    text = report(times, loads, command, cpus, phases)
+    command = ("nice " if os.nice(0) > 0 else "") + shlex.join(["python", "-m", "sim.evaluate.bench", *arguments])
+    text = f"## Profile `{args.profile}`\n\n" + report(times, loads, command, cpus, phases)
     print(text)
     if args.write:
-        atomic_write_text(args.write, text)
+        write_section(args.write, args.profile, text)
     return 0
+
+
+def write_section(path: Path, key: str, text: str) -> None:
+    """Put `text` into the Markdown file `path` between the markers of `key`, replacing what they held (appended
+    when the file has none), the rest of the file kept; written atomically."""
+    begin, end = f"<!-- bench {key} -->\n", f"<!-- /bench {key} -->"
+    old = path.read_text() if path.is_file() else ""
+    if begin in old and end in old.split(begin, 1)[1]:
+        head, rest = old.split(begin, 1)
+        new = head + begin + text + end + rest.split(end, 1)[1]
+    else:
+        new = old + ("\n" if old and not old.endswith("\n\n") else "") + begin + text + end + "\n"
+    atomic_write_text(path, new)
 
 
 if __name__ == "__main__":

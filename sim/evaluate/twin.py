@@ -64,7 +64,8 @@ def pack(object_id: str, decomposition_seed: int, assets_dir: Path = ASSETS_DIR)
         raise ValueError(f"unknown object id {object_id!r}; the twin has {sorted(r['id'] for r in records)}")
     files = {rel: (assets_dir / rel).read_bytes() for rel in record["files"].values()}
     mesh = load_asset(object_id, assets_dir).mesh
-    entries = (Path(ASSET_CACHE_DIR) / f"{key}.npz" for key in sweep_cache_keys(mesh, DecompositionConfig(seed=decomposition_seed)))
+    keys = sweep_cache_keys(mesh, DecompositionConfig(seed=decomposition_seed))
+    entries = (Path(ASSET_CACHE_DIR) / f"{key}.npz" for key in keys)
     return TwinObject(object_id, record, files, {p.name: p.read_bytes() for p in entries if p.is_file()})
 
 
