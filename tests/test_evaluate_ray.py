@@ -41,8 +41,9 @@ def runs(tmp_path_factory) -> tuple[Path, Path, Path]:
     root = tmp_path_factory.mktemp("engines")
     local, ray_run, marker = root / "local", root / "ray", root / "killed-worker.pid"
     _evaluate(local, "--engine", "local", "--workers", "1")
+    # RAY_ADDRESS names a cluster that is not there: without --address the engine starts its own instance anyway
     _evaluate(ray_run, "--engine", "ray", "--workers", "2",
-              env={KILL_ONCE_ENV: str(marker), TWIN_DIR_ENV: str(root / "twin")})
+              env={KILL_ONCE_ENV: str(marker), TWIN_DIR_ENV: str(root / "twin"), "RAY_ADDRESS": "127.0.0.1:9"})
     return local, ray_run, marker
 
 

@@ -91,7 +91,8 @@ def _connect(workers: int, address: str | None) -> bool:
     if address:
         ray.init(address=address, **options)
     else:
-        ray.init(num_cpus=workers, object_store_memory=256 * 1024**2, **options)
+        # "local": a new instance of our own, even when a `ray start` cluster runs on this machine
+        ray.init(address="local", num_cpus=workers, object_store_memory=256 * 1024**2, **options)
     return True
 
 
