@@ -128,7 +128,8 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
             except ray.exceptions.RayError as exc:  # the worker died more often than Ray retries
                 status = {"object_id": task.object_id, "seed": task.seed, "ok": False, "seconds": 0.0,
                           "error": f"{type(exc).__name__}: the Ray task failed", "traceback": str(exc)}
-            trace.tasks.append(dict(status.pop("worker", {}), received=time.time()))
+            if "worker" in status:  # (not when its worker died for good)
+                trace.tasks.append(dict(status.pop("worker"), received=time.time()))
             for name, records in status.pop("records", {}).items():
                 JsonLines(Path(task.out) / name).extend(records)
             crashes += on_status(status)
