@@ -1,5 +1,5 @@
-"""`python -m sim.evaluate --engine ray` on a local Ray instance of 2 CPUs: the same records as the local engine, and
-a Ray worker killed mid-task loses and duplicates no trial."""
+"""`python -m sim.evaluate --engine ray` on a local Ray instance of 2 CPUs: the same records as the local engine, the
+tasks run on the objects the driver shipped, and a Ray worker killed mid-task loses and duplicates no trial."""
 
 import json
 import os
@@ -17,10 +17,12 @@ from sim.evaluate import JsonLines  # noqa: E402
 from sim.evaluate.config import QUICK_CATEGORIES  # noqa: E402
 from sim.evaluate.ray_engine import KILL_ONCE_ENV  # noqa: E402
 from sim.evaluate.records import curve_key, segmentation_key, trial_key  # noqa: E402
+from sim.evaluate.twin import TWIN_DIR_ENV  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 #: A subset of the quick profile that fits the suite: its first two objects, SegGrasp and its coarse votes, top-2.
-SUBSET = ["--objects", ",".join(asset_ids([c])[0] for c in QUICK_CATEGORIES[:2]), "--methods", "seggrasp,coarse",
+OBJECTS = [asset_ids([c])[0] for c in QUICK_CATEGORIES[:2]]
+SUBSET = ["--objects", ",".join(OBJECTS), "--methods", "seggrasp,coarse",
           "--embodiment", "floating", "--top-k", "2", "--seed", "0"]
 FILES = {"trials.jsonl": trial_key, "segmentations.jsonl": segmentation_key, "curves.jsonl": curve_key}
 
@@ -34,11 +36,14 @@ def _evaluate(out: Path, *args: str, env: dict | None = None) -> None:
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> tuple[Path, Path, Path]:
-    """(local run, Ray run whose first task's worker killed itself before returning, the kill marker)."""
+    """(local run, Ray run whose first task's worker killed itself before returning, the kill marker); the Ray
+    workers unpack the shipped objects under <root>/twin."""
     root = tmp_path_factory.mktemp("engines")
     local, ray_run, marker = root / "local", root / "ray", root / "killed-worker.pid"
     _evaluate(local, "--engine", "local", "--workers", "1")
-    _evaluate(ray_run, "--engine", "ray", "--workers", "2", env={KILL_ONCE_ENV: str(marker)})
+    # RAY_ADDRESS names a cluster that is not there: without --address the engine starts its own instance anyway
+    _evaluate(ray_run, "--engine", "ray", "--workers", "2",
+              env={KILL_ONCE_ENV: str(marker), TWIN_DIR_ENV: str(root / "twin"), "RAY_ADDRESS": "127.0.0.1:9"})
     return local, ray_run, marker
 
 
@@ -66,6 +71,13 @@ def test_ray_engine_records_equal_the_local_engine_s(runs) -> None:
     summaries = [json.loads((run / "summary.json").read_text())["methods"] for run in (local, ray_run)]
     for method in ("seggrasp", "coarse"):
         assert summaries[1][method]["intervals"] == summaries[0][method]["intervals"]
+
+
+@pytest.mark.slow
+def test_ray_tasks_run_on_the_objects_the_driver_shipped(runs) -> None:
+    twin_dir = runs[1].parent / "twin"
+    assert sorted(p.name.rsplit("-", 1)[0] for p in twin_dir.iterdir()) == sorted(OBJECTS)
+    assert all((p / "manifest.json").is_file() and any((p / "decompositions").iterdir()) for p in twin_dir.iterdir())
 
 
 @pytest.mark.slow

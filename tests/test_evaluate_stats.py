@@ -96,3 +96,64 @@ def test_the_engine_benchmark_table_gives_speedups_and_ray_s_overhead() -> None:
     assert "| Ray overhead over local, 1 worker(s) | +0.0 % |" in text
     assert "| Ray overhead over local, 2 worker(s) | +0.0 % |" in text
     assert "load average 2.0-3.0" in text
+
+
+def _mixed_rows() -> list[dict]:
+    """Slots of two requests: executed or not, with unknown contacts/success, first and later ranks."""
+    base = {"method": "m", "category": "thing", "seed": 0, "reachable": True, "detector": "simulated:typical",
+            "T_world_grasp": np.eye(4).tolist()}
+    slots = [  # (object, rank, executed, contacts_on_part, success)
+        ("a", 0, True, True, True), ("a", 1, True, True, False), ("a", 2, False, None, None),
+        ("b", 0, True, False, False), ("b", 1, True, None, None), ("b", 2, False, False, False),
+    ]
+    return [dict(base, object_id=o, prompt="handle", rank=k, executed=e, contacts_on_part=c, success=s)
+            for o, k, e, c, s in slots]
+
+
+def test_the_report_s_grasp_figures_are_the_interval_means_and_keep_their_values() -> None:
+    from sim.evaluate.report import grasp_metrics
+
+    rows = _mixed_rows()
+    figures = grasp_metrics(rows)
+    # hand-counted: all slots with a known value; top-1 = rank 0; executed-only = executed with a known value
+    assert figures["part_selection_all_slots"] == pytest.approx(2 / 4)
+    assert figures["success_all_slots"] == pytest.approx(1 / 4)
+    assert figures["success_top1"] == pytest.approx(1 / 2)
+    assert figures["part_selection"] == pytest.approx(2 / 3)
+    assert figures["success"] == pytest.approx(1 / 3)
+    intervals = method_intervals(rows, [], ["m"])["m"]
+    for name in GRASP_METRICS:
+        assert figures[name] == pytest.approx(intervals[name]["mean"]), name
+
+
+def test_the_report_and_the_intervals_share_one_metric_definition(monkeypatch) -> None:
+    from sim.evaluate.report import grasp_metrics
+
+    rows = _mixed_rows()
+    monkeypatch.setitem(GRASP_METRICS, "success_top1", lambda r: float(bool(r["success"])) if r["rank"] == 1 else None)
+    assert grasp_metrics(rows)["success_top1"] == pytest.approx(0.0)  # rank 1: one failure, one unknown
+    assert method_intervals(rows, [], ["m"])["m"]["success_top1"]["mean"] == pytest.approx(0.0)
+
+
+def test_the_engine_benchmark_reports_ray_s_phases_and_rewrites_only_its_profile_s_section(tmp_path) -> None:
+    from sim.evaluate.bench import PHASES, report, write_section
+
+    times = {("local", 1): [10.0], ("local", 2): [6.0], ("ray", 1): [13.0], ("ray", 2): [8.0]}
+    stamps = {"engine": 101.0, "connected": 104.0, "packed": 101.5, "done": 112.0, "stopped": 113.5}
+    tasks = [{"started": 105.0, "finished": 108.0, "received": 108.25},
+             {"started": 108.5, "finished": 111.5, "received": 111.75}]
+    phase = {title: f(stamps, tasks, 2_000_000, 100.0) for title, f in PHASES}
+    text = report(times, [1.0], "bench", {("local", 1): [9.5]}, {("ray", 1): [phase]})
+    assert "| local | 1 | 10.0 | 10.0 | 9.5 |" in text and "| ray | 1 | 13.0 | 13.0 | — |" in text
+    rows = {line.split(" | ")[0][2:]: line.rsplit("|", 2)[1].strip() for line in text.splitlines()
+            if line.startswith("| ")}
+    values = [rows[title] for title, _ in PHASES]
+    assert values == ["1.00", "3.00", "0.50", "2.00", "1.00", "6.00", "0.25", "1.50"]
+    doc = tmp_path / "engines.md"
+    doc.write_text("# Engines\n\nprose\n")
+    write_section(doc, "--quick", "old quick\n")
+    write_section(doc, "--quick --seeds 0-4", "five seeds\n")
+    write_section(doc, "--quick", "new quick\n")
+    content = doc.read_text()
+    assert content.startswith("# Engines\n\nprose\n") and "old quick" not in content
+    assert content.index("new quick") < content.index("five seeds") and content.count("<!-- bench --quick -->") == 1

@@ -260,3 +260,11 @@ def decompose_sweep(
                 len(partitions), len(evaluated), len(stats.cached), len(stats.timed_out),
                 time.perf_counter() - started)
     return partitions
+
+
+def sweep_cache_keys(mesh: trimesh.Trimesh, config: DecompositionConfig | None = None) -> list[str]:
+    """The cache keys (`<key>.npz` entries) that `decompose_sweep(mesh, config)` may read: one per configured
+    threshold (an adaptive sweep reads a subset). For shipping a mesh's cached runs to a machine without them."""
+    config = config or DecompositionConfig()
+    sweep = _Sweep(mesh, config, default_cache_dir(), False, 1, SweepStats())
+    return [sweep._key(t) for t in config.thresholds]

@@ -5,8 +5,9 @@ For each (object, seed) the runner (runner.py) hands the cell, the detector and 
 `seggrasp.episode.Episode`: segment once per method (coarse votes and decompositions shared), sample grasps once,
 and for each prompt execute the method's top-k grasps on the selected part, each from a fresh reset of the same
 scene. The seed redraws the detector's errors, the scene and the grasps (CoACD keeps config.DECOMPOSITION_SEED).
-Tasks run in local processes or as Ray tasks (ray_engine.py, whose driver alone writes the records). Outputs in
-`--out` (records.py; the folder is locked while a run writes it):
+Tasks run in local processes or as Ray tasks (ray_engine.py, whose driver alone writes the records and ships each
+object once through the object store, twin.py). Outputs in `--out` (records.py; the folder is locked while a run
+writes it):
 
 - `trials.jsonl`       one JSON line per trial (appended, flushed and fsynced; a torn last line left by a killed run
                        is dropped on `--resume`, trials already recorded are skipped, duplicates ignored);

@@ -1,14 +1,21 @@
 """`python -m sim.evaluate.bench`: wall time of one evaluation profile under the local and Ray engines with 1 and 2
 workers, measured side by side (the configurations take turns, round after round, so a drift of the machine's load
-hits all of them alike); writes the table of medians, speedups and Ray's overhead to a Markdown file.
+hits all of them alike); writes the table of medians, speedups and Ray's overhead, and where a Ray run's time goes
+(from the time stamps the Ray engine writes to $SEGGRASP_RAY_TRACE), to a Markdown file.
 
-    nice python -m sim.evaluate.bench --rounds 2 --write docs/results/evaluate-scale.md
+    nice python -m sim.evaluate.bench --rounds 2 --profile "--quick --seeds 0-1" --write docs/results/evaluate-scale.md
+
+`--write` puts the profile's section into the file between markers named after the profile (replacing that
+section, keeping the rest), so the sections of several profiles and the prose around them live in one file.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import resource
+import shlex
 import statistics
 import subprocess
 import sys
@@ -18,54 +25,101 @@ from pathlib import Path
 from typing import Sequence
 
 from seggrasp.io import atomic_write_text
+from sim.evaluate.ray_engine import TRACE_ENV
 
 CONFIGS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
+#: Where a Ray run's wall time goes, from its trace (ray_engine.Trace) and the process's start time t0.
+PHASES = (
+    ("driver start-up: interpreter, imports, arguments, output folder (s)", lambda s, t, b, t0: s["engine"] - t0),
+    ("ray.init of the local instance (s; the objects are packed meanwhile)",
+     lambda s, t, b, t0: s["connected"] - s["engine"]),
+    ("packing the run's objects, in a thread (s, overlapped)", lambda s, t, b, t0: s["packed"] - s["engine"]),
+    ("objects put in the object store, once each (MB)", lambda s, t, b, t0: b / 1e6),
+    ("ray.init's end to the first task's start in a worker: worker start-up, imports (s)",
+     lambda s, t, b, t0: min(x["started"] for x in t) - s["connected"]),
+    ("tasks in the workers (s, sum)", lambda s, t, b, t0: sum(x["finished"] - x["started"] for x in t)),
+    ("hand-over: a task's end in its worker to its records written (s, mean)",
+     lambda s, t, b, t0: statistics.mean(x["received"] - x["finished"] for x in t)),
+    ("last task done to Ray stopped (s; the summary is written meanwhile)",
+     lambda s, t, b, t0: s["stopped"] - s["done"]),
+)
 
 
-def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> float:
-    """Wall seconds of one `python -m sim.evaluate` run (a fresh output folder); raises if it fails."""
-    started = time.perf_counter()
+def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> tuple[float, float | None, dict]:
+    """Wall seconds of one `python -m sim.evaluate` run (a fresh output folder), its CPU seconds (the process and
+    the children it reaped: complete for the local engine; None for Ray, whose workers are its instance's children)
+    and, for Ray, its phases (PHASES); raises if it fails."""
+    trace = out.with_suffix(".trace.json")
+    env = dict(os.environ, **({TRACE_ENV: str(trace)} if engine == "ray" else {}))
+    cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    started, wall_start = time.perf_counter(), time.time()
     result = subprocess.run([sys.executable, "-m", "sim.evaluate", *profile, "--engine", engine, "--workers",
-                             str(workers), "--out", str(out)], capture_output=True, text=True)
+                             str(workers), "--out", str(out)], capture_output=True, text=True, env=env)
     seconds = time.perf_counter() - started
     if result.returncode != 0:
         raise RuntimeError(f"{engine} x{workers} failed ({result.returncode}): {result.stderr[-2000:]}")
-    return seconds
+    cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = cpu_after.ru_utime + cpu_after.ru_stime - cpu_before.ru_utime - cpu_before.ru_stime
+    if engine != "ray":
+        return seconds, cpu, {}
+    recorded = json.loads(trace.read_text())
+    phases = {title: phase(recorded["stamps"], recorded["tasks"], recorded["packed_bytes"], wall_start)
+              for title, phase in PHASES}
+    return seconds, None, phases
 
 
-def measure(profile: Sequence[str], rounds: int) -> tuple[dict[tuple[str, int], list[float]], list[float]]:
-    """Wall times per configuration over `rounds` rounds (the order rotates each round), and the 1-minute load
-    average before each run."""
+def measure(profile: Sequence[str], rounds: int) -> tuple[dict, list[float], dict, dict]:
+    """Per configuration over `rounds` rounds (the order rotates each round): wall times, the 1-minute load
+    average before each run, CPU times (local engine) and Ray's phases."""
     times: dict[tuple[str, int], list[float]] = {c: [] for c in CONFIGS}
+    cpus: dict[tuple[str, int], list[float]] = {c: [] for c in CONFIGS}
+    phases: dict[tuple[str, int], list[dict]] = {c: [] for c in CONFIGS}
     loads = []
     with tempfile.TemporaryDirectory(prefix="evaluate-bench-") as root:
         for r in range(rounds):
             for i in range(len(CONFIGS)):
                 engine, workers = CONFIGS[(i + r) % len(CONFIGS)]
                 loads.append(os.getloadavg()[0])
-                seconds = time_run(engine, workers, profile, Path(root) / f"{engine}-{workers}-{r}")
+                seconds, cpu, phase = time_run(engine, workers, profile, Path(root) / f"{engine}-{workers}-{r}")
                 times[(engine, workers)].append(seconds)
+                if cpu is not None:
+                    cpus[(engine, workers)].append(cpu)
+                if phase:
+                    phases[(engine, workers)].append(phase)
                 print(f"round {r}: {engine} x{workers}: {seconds:.1f} s", flush=True)
-    return times, loads
+    return times, loads, cpus, phases
 
 
-def report(times: dict[tuple[str, int], list[float]], loads: list[float], command: str) -> str:
-    """The Markdown table: median wall time per configuration, 2-over-1 speedups, Ray over local per worker count."""
+def report(times: dict[tuple[str, int], list[float]], loads: list[float], command: str, cpus: dict | None = None,
+           phases: dict | None = None) -> str:
+    """The Markdown tables: median wall (and CPU) time per configuration, 2-over-1 speedups, Ray over local per
+    worker count, and the median of each of Ray's phases."""
     median = {c: statistics.median(v) for c, v in times.items()}
+    cpus, phases = cpus or {}, phases or {}
     rows = [f"| {engine} | {workers} | {median[(engine, workers)]:.1f} | "
-            f"{', '.join(f'{t:.1f}' for t in times[(engine, workers)])} |" for engine, workers in CONFIGS]
+            f"{', '.join(f'{t:.1f}' for t in times[(engine, workers)])} | "
+            f"{f'{statistics.median(cpus[(engine, workers)]):.1f}' if cpus.get((engine, workers)) else '—'} |"
+            for engine, workers in CONFIGS]
     lines = [
-        "# Evaluation engines: local processes vs Ray", "",
         f"Measured with `{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, on a 2-core machine "
         f"shared with other jobs: 1-minute load average {min(loads):.1f}-{max(loads):.1f} "
         f"(median {statistics.median(loads):.1f}) before the runs. Wall time of a whole `python -m sim.evaluate` "
         "process (Ray: including starting and stopping the local Ray instance); configurations take turns.", "",
-        "| engine | workers | median wall (s) | runs (s) |", "|---|---|---|---|", *rows, "",
+        "| engine | workers | median wall (s) | runs (s) | median CPU (s) |", "|---|---|---|---|---|", *rows, "",
+        "CPU: the run's process and the processes it reaped (user + system); not measured for Ray, whose workers "
+        "are its instance's children.", "",
         "| figure | value |", "|---|---|",
         *(f"| speedup of 2 workers over 1, {e} | {median[(e, 1)] / median[(e, 2)]:.2f}x |" for e in ("local", "ray")),
         *(f"| Ray overhead over local, {w} worker(s) | {100 * (median[('ray', w)] / median[('local', w)] - 1):+.1f} % |"
           for w in (1, 2)),
     ]
+    ray_configs = [c for c in CONFIGS if phases.get(c)]
+    if ray_configs:
+        lines += ["", "Where a Ray run's wall time goes (median over its runs; the Ray engine's time stamps):", "",
+                  f"| phase | {' | '.join(f'{e} x{w}' for e, w in ray_configs)} |",
+                  "|---" * (1 + len(ray_configs)) + "|",
+                  *(f"| {title} | " + " | ".join(f"{statistics.median(p[title] for p in phases[c]):.2f}"
+                                                  for c in ray_configs) + " |" for title, _ in PHASES)]
     return "\n".join(lines) + "\n"
 
 
@@ -73,19 +127,32 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.evaluate.bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--rounds", type=int, default=2, help="runs of each configuration (default 2)")
     parser.add_argument("--profile", default="--quick", help="arguments of the measured run (default --quick)")
-    parser.add_argument("--write", type=Path, help="write the table to this Markdown file")
+    parser.add_argument("--write", type=Path, help="write the profile's section into this Markdown file")
     args = parser.parse_args(argv)
     if args.rounds < 1:
         print("error: --rounds must be at least 1", file=sys.stderr)
         return 2
-    times, loads = measure(args.profile.split(), args.rounds)
+    times, loads, cpus, phases = measure(args.profile.split(), args.rounds)
     arguments = argv if argv is not None else sys.argv[1:]
-    command = ("nice " if os.nice(0) > 0 else "") + " ".join(["python -m sim.evaluate.bench", *arguments])
-    text = report(times, loads, command)
+    command = ("nice " if os.nice(0) > 0 else "") + shlex.join(["python", "-m", "sim.evaluate.bench", *arguments])
+    text = f"## Profile `{args.profile}`\n\n" + report(times, loads, command, cpus, phases)
     print(text)
     if args.write:
-        atomic_write_text(args.write, text)
+        write_section(args.write, args.profile, text)
     return 0
+
+
+def write_section(path: Path, key: str, text: str) -> None:
+    """Put `text` into the Markdown file `path` between the markers of `key`, replacing what they held (appended
+    when the file has none), the rest of the file kept; written atomically."""
+    begin, end = f"<!-- bench {key} -->\n", f"<!-- /bench {key} -->"
+    old = path.read_text() if path.is_file() else ""
+    if begin in old and end in old.split(begin, 1)[1]:
+        head, rest = old.split(begin, 1)
+        new = head + begin + text + end + rest.split(end, 1)[1]
+    else:
+        new = old + ("\n" if old and not old.endswith("\n\n") else "") + begin + text + end + "\n"
+    atomic_write_text(path, new)
 
 
 if __name__ == "__main__":

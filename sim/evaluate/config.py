@@ -43,6 +43,11 @@ class RunConfig:
     record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
 
     @property
+    def uses_torch(self) -> bool:
+        """Whether the run's detector is a torch model (a simulated one is not)."""
+        return self.detector in REAL_DETECTORS
+
+    @property
     def seed(self) -> int:
         """The seed of a one-seed config (see `at_seed`)."""
         if len(self.seeds) != 1:

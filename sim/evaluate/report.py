@@ -16,11 +16,11 @@ import numpy as np
 
 from seggrasp.io import atomic_write_json, atomic_write_text
 from seggrasp.method import RECIPES
-from seggrasp.metrics import mean_over_categories, part_selection_accuracy, quaternion_variance, success_rate
+from seggrasp.metrics import mean_over_categories, quaternion_variance
 from sim.evaluate.config import RunConfig
 from sim.evaluate.plots import write_plots
 from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key
-from sim.evaluate.stats import CONFIDENCE, N_RESAMPLES, method_intervals, paired_differences
+from sim.evaluate.stats import CONFIDENCE, GRASP_METRICS, N_RESAMPLES, method_intervals, paired_differences
 
 ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "anchored", "seggrasp")
 #: Paired differences the report gives (when both methods ran): SegGrasp against its coarse votes and GeoFusion.
@@ -78,31 +78,25 @@ def failure_name(record: dict) -> str:
     return "wrong_part" if record.get("lifted") and record.get("touched_on_part") is False else UNNAMED_FAILURE
 
 
-def _rate(values: list, rate) -> float | None:
-    return rate(values) if values else None
-
-
 def grasp_metrics(rows: list[dict]) -> dict:
-    """Per-request Part Sel. and Suc. over all slots, top-1 Suc., the executed-only figures (DESIGN.md section 5),
-    sigma^2 of the executed grasps' orientations per request, and the failure counts."""
+    """Per-request Part Sel. and Suc. over all slots, top-1 Suc., the executed-only figures (DESIGN.md section 5;
+    each metric's rule is stats.GRASP_METRICS, which the intervals use too), sigma^2 of the executed grasps'
+    orientations per request, and the failure counts."""
     executed = [r for r in rows if r["executed"]]
     groups: dict[tuple, list[np.ndarray]] = {}
     for r in executed:
         groups.setdefault((r["object_id"], r["prompt"]), []).append(np.array(r["T_world_grasp"])[:3, :3])
     variances = [quaternion_variance(np.stack(g)) for g in groups.values() if len(g) >= 2]
-    first = [bool(r["success"]) for r in rows if r["rank"] == 0 and r["success"] is not None]
     failures = Counter(failure_name(r) for r in rows if not r.get("success"))
+    rates = {}
+    for name, value in GRASP_METRICS.items():  # each a 0/1 value per counted record: its rate is the mean
+        values = [v for v in map(value, rows) if v is not None]
+        rates[name] = float(np.mean(values)) if values else None
     return {
         "trials": len(rows),
         "executed": len(executed),
         "reachable": int(sum(r["reachable"] for r in executed)),
-        "part_selection_all_slots": _rate([bool(r["contacts_on_part"]) for r in rows
-                                           if r["contacts_on_part"] is not None], part_selection_accuracy),
-        "success_all_slots": _rate([bool(r["success"]) for r in rows if r["success"] is not None], success_rate),
-        "success_top1": _rate(first, success_rate),
-        "part_selection": _rate([r["contacts_on_part"] for r in executed if r["contacts_on_part"] is not None],
-                                part_selection_accuracy),
-        "success": _rate([r["success"] for r in executed if r["success"] is not None], success_rate),
+        **rates,
         "sigma2": float(np.mean(variances)) if variances else None,
         "failures": dict(sorted(failures.items())),
     }

@@ -11,16 +11,20 @@ import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, TrialRecord, grasp_key
+from seggrasp.objects import ObjectModel
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.evaluate.config import RunConfig, scene_seed_of
 from sim.evaluate.records import JsonLines, VoteCache, curve_key, read_unique, seed_of, segmentation_key, trial_key
+
+if TYPE_CHECKING:
+    from sim.evaluate.twin import TwinObject
 
 LOG = logging.getLogger("sim.evaluate")
 
@@ -46,6 +50,7 @@ class ObjectTask:
     recorded: Recorded | None = None  # None: read from `out`
     parallel: bool = False  # other tasks run at the same time: one CoACD process per task
     collect: bool = False  # return the new records instead of appending them to `out` (the driver writes them)
+    twin: TwinObject | None = None  # the object's data shipped by the driver (else read from the installed twin)
 
 
 class Sink:
@@ -80,19 +85,25 @@ def recorded_index(out: Path) -> Callable[[str, int], Recorded]:
 
 
 _CELL = None  # one cell per worker process
+_CELL_OBJECTS: dict[str, ObjectModel] = {}  # the twin objects this process's cell holds (those its tasks brought)
 
 
-def _get_cell(config: RunConfig) -> Cell:
+def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
+    """This process's cell: the real one, or a twin cell holding `model` (rebuilt with it added, once per object)."""
     global _CELL
-    if _CELL is None:
-        if config.backend == "real":
+    if config.backend == "real":
+        if _CELL is None:
             from hardware import RealCell  # lazy: the real cell's drivers are optional on a sim-only machine
 
             _CELL = RealCell.from_config(config.config, dry_run=config.dry_run)
-        else:
-            from sim.cell import SimCell
+        return _CELL
+    if _CELL is None or model.object_id not in _CELL_OBJECTS:
+        from sim.cell import SimCell
 
-            _CELL = SimCell(embodiment=config.embodiment, seed=config.seed)
+        objects = dict(_CELL_OBJECTS, **{model.object_id: model})
+        close_cell()
+        _CELL = SimCell(objects=list(objects.values()), embodiment=config.embodiment, seed=config.seed)
+        _CELL_OBJECTS.update(objects)
     return _CELL
 
 
@@ -102,6 +113,7 @@ def close_cell() -> None:
     if _CELL is not None:
         _CELL.close()
         _CELL = None
+    _CELL_OBJECTS.clear()
 
 
 def evaluate_object(task: ObjectTask) -> dict:
@@ -111,10 +123,11 @@ def evaluate_object(task: ObjectTask) -> dict:
     head = {"object_id": task.object_id, "seed": task.seed}
     try:
         config = task.config.at_seed(task.seed)
-        cell = _get_cell(config)
-        context, truth = subject_of(task.object_id, config, cell)
+        model, decomposition_cache = _object_of(task, config)
+        cell = _get_cell(config, model)
+        context, truth = subject_of(task.object_id, config, cell, model)
         n_new = run_object(cell, context, truth, config, Path(task.out), parallel=task.parallel,
-                           recorded=task.recorded, sink=sink)
+                           recorded=task.recorded, sink=sink, decomposition_cache=decomposition_cache)
         status = dict(head, ok=True, new_trials=n_new, seconds=time.time() - started)
     except Exception as exc:  # a crash of one object must not lose the others' results
         status = dict(head, ok=False, error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(),
@@ -124,14 +137,30 @@ def evaluate_object(task: ObjectTask) -> dict:
     return status
 
 
-def subject_of(object_id: str, config: RunConfig, cell: Cell) -> tuple[EpisodeContext, GroundTruth | None]:
-    """What the harness knows about an object: its context and, for a twin object, its ground truth."""
+def _object_of(task: ObjectTask, config: RunConfig) -> tuple[ObjectModel | None, Path | None]:
+    """The task's twin object and the decomposition cache folder its data came with (None: the user's cache and the
+    bundled one): unpacked from the shipped data, or read from the installed twin; (None, None) on the real cell."""
+    if config.backend == "real":
+        return None, None
+    if task.twin is not None:
+        from sim.evaluate.twin import unpack
+
+        return unpack(task.twin)
+    from seggrasp.objects import load_asset
+
+    return load_asset(task.object_id), None
+
+
+def subject_of(object_id: str, config: RunConfig, cell: Cell,
+               model: ObjectModel | None = None) -> tuple[EpisodeContext, GroundTruth | None]:
+    """What the harness knows about an object: its context and, for a twin object (`model`, default: read from
+    the installed twin), its ground truth."""
     scene_seed = scene_seed_of(object_id, config.seed)
     if config.backend == "real":
         return EpisodeContext(object_id, "real", list(config.prompts), scene_seed), None
     from seggrasp.objects import load_asset
 
-    model = load_asset(object_id)
+    model = model or load_asset(object_id)
     context = EpisodeContext.from_object(model, scene_seed, prompts=config.prompts or None)
     return context, GroundTruth.of_object(model, context.prompts, true_pose=lambda: cell.object_mesh()[1])
 
@@ -146,9 +175,11 @@ def run_object(
     parallel: bool = False,
     recorded: Recorded | None = None,
     sink: Sink | None = None,
+    decomposition_cache: Path | None = None,
 ) -> int:
     """Run every method's episode slots of one object (at `config`'s one seed) that `recorded` (default: what `out`
-    holds) lacks, handing new records to `sink` (default: appended to `out`); returns how many trials were added."""
+    holds) lacks, handing new records to `sink` (default: appended to `out`); returns how many trials were added.
+    `decomposition_cache`: the writable decomposition cache (default the user's; the bundled one is searched too)."""
     recorded = recorded if recorded is not None else recorded_index(out)(context.object_id, config.seed)
     sink = sink or Sink(out)
     done = {trial_key(r) for r in recorded.trials}
@@ -156,6 +187,7 @@ def run_object(
         seed=config.seed, top_k=config.top_k, perceive=config.perceive,
         workspace=workspace_of(cell) if config.perceive else None, decomposition_workers=1 if parallel else None,
         decomposition_seed=config.decomposition_seed,
+        decomposition_cache=str(decomposition_cache) if decomposition_cache is not None else None,
     )
     episode = Episode(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
@@ -264,13 +296,16 @@ def threshold_curve(episode: Episode) -> dict:
     }
 
 
-def worker_init() -> None:
-    """Set up a worker process: one torch thread."""
+def worker_init(uses_torch: bool = False) -> None:
+    """Set up a worker process: one torch thread when the run's detector is a torch model (importing torch costs
+    a second or more per process, so a run of simulated detectors leaves it alone)."""
+    if not uses_torch:
+        return
     try:
         import torch
 
         torch.set_num_threads(1)
-    except ImportError:  # torch only matters for the real detectors
+    except ImportError:  # a real detector then reports the missing torch itself
         pass
 
 
@@ -319,14 +354,15 @@ def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status) -> l
         on_status(status)
     crashes = []
     if workers == 1:
-        worker_init()
+        worker_init(config.uses_torch)
         for status in map(evaluate_object, tasks):
             crashes += on_status(status)
         close_cell()
         return crashes
     # not multiprocessing.Pool: its daemonic workers may not start the CoACD processes of a decomposition
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init) as pool:
+    with ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init,
+                             initargs=(config.uses_torch,)) as pool:
         for status in as_completed([pool.submit(evaluate_object, task) for task in tasks]):
             crashes += on_status(status.result())
     return crashes
