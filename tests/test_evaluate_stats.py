@@ -98,6 +98,23 @@ def test_the_engine_benchmark_table_gives_speedups_and_ray_s_overhead() -> None:
     assert "load average 2.0-3.0" in text
 
 
+def test_the_engine_benchmark_reports_a_joined_ray_instance_beside_a_started_one() -> None:
+    from sim.evaluate.bench import PHASES, report
+
+    times = {("local", 1): [20.0], ("local", 2): [12.0], ("ray", 1): [24.0], ("ray", 2): [15.0],
+             ("ray-cluster", 1): [21.0], ("ray-cluster", 2): [12.6]}
+    joined = {"engine": 101.0, "connected": 101.5, "packed": 101.2, "done": 110.0}  # no instance stopped
+    tasks = [{"started": 102.0, "finished": 109.0, "received": 109.5}]
+    phase = {title: f(joined, tasks, 1_000_000, 100.0) for title, f in PHASES}
+    text = report(times, [1.0], "bench", None, {("ray-cluster", 1): [phase]})
+    assert "| Ray overhead over local, 1 worker(s) | +20.0 % |" in text
+    assert "| Ray joining a running instance overhead over local, 1 worker(s) | +5.0 % |" in text
+    assert "| Ray joining a running instance overhead over local, 2 worker(s) | +5.0 % |" in text
+    assert "| speedup of 2 workers over 1, ray-cluster | 1.67x |" in text
+    stopped_row = next(line for line in text.splitlines() if line.startswith("| last task done to Ray stopped"))
+    assert stopped_row.endswith("| — |")
+
+
 def _mixed_rows() -> list[dict]:
     """Slots of two requests: executed or not, with unknown contacts/success, first and later ranks."""
     base = {"method": "m", "category": "thing", "seed": 0, "reachable": True, "detector": "simulated:typical",

@@ -3,6 +3,11 @@ workers, measured side by side (the configurations take turns, round after round
 hits all of them alike); writes the table of medians, speedups and Ray's overhead, and where a Ray run's time goes
 (from the time stamps the Ray engine writes to $SEGGRASP_RAY_TRACE), to a Markdown file.
 
+Two Ray configurations: `ray` starts and stops a local instance inside the run (what `--engine ray` without
+`--address` does), `ray-cluster` joins an instance started beforehand with `ray start --head --num-cpus W` (what a
+run on a cluster does; starting and stopping that instance is not timed, and `ray stop` ends every Ray process of
+the machine after each such run).
+
     nice python -m sim.evaluate.bench --rounds 2 --profile "--quick --seeds 0-1" --write docs/results/evaluate-scale.md
 
 `--write` puts the profile's section into the file between markers named after the profile (replacing that
@@ -27,11 +32,15 @@ from typing import Sequence
 from seggrasp.io import atomic_write_text
 from sim.evaluate.ray_engine import TRACE_ENV
 
-CONFIGS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
+CONFIGS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2), ("ray-cluster", 1), ("ray-cluster", 2))
+ENGINES = ("local", "ray", "ray-cluster")
+ENGINE_NAMES = {"ray": "Ray", "ray-cluster": "Ray joining a running instance"}
+#: The port of the instance the `ray-cluster` configurations join (not Ray's default, to keep clear of a user's).
+CLUSTER_PORT = 6391
 #: Where a Ray run's wall time goes, from its trace (ray_engine.Trace) and the process's start time t0.
 PHASES = (
     ("driver start-up: interpreter, imports, arguments, output folder (s)", lambda s, t, b, t0: s["engine"] - t0),
-    ("ray.init of the local instance (s; the objects are packed meanwhile)",
+    ("ray.init: the local instance started, or the running one joined (s; the objects are packed meanwhile)",
      lambda s, t, b, t0: s["connected"] - s["engine"]),
     ("packing the run's objects, in a thread (s, overlapped)", lambda s, t, b, t0: s["packed"] - s["engine"]),
     ("objects put in the object store, once each (MB)", lambda s, t, b, t0: b / 1e6),
@@ -40,27 +49,44 @@ PHASES = (
     ("tasks in the workers (s, sum)", lambda s, t, b, t0: sum(x["finished"] - x["started"] for x in t)),
     ("hand-over: a task's end in its worker to its records written (s, mean)",
      lambda s, t, b, t0: statistics.mean(x["received"] - x["finished"] for x in t)),
-    ("last task done to Ray stopped (s; the summary is written meanwhile)",
-     lambda s, t, b, t0: s["stopped"] - s["done"]),
+    ("last task done to Ray stopped (s; the summary is written meanwhile; — when joined)",
+     lambda s, t, b, t0: s["stopped"] - s["done"] if "stopped" in s else float("nan")),
 )
+
+
+def _ray_cli(*arguments: str) -> None:
+    """Run the `ray` command line (of this interpreter's Ray) and raise if it fails."""
+    result = subprocess.run([sys.executable, "-m", "ray.scripts.scripts", *arguments], capture_output=True, text=True)
+    if result.returncode != 0:
+        raise RuntimeError(f"ray {' '.join(arguments)} failed ({result.returncode}): {result.stderr[-2000:]}")
 
 
 def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> tuple[float, float | None, dict]:
     """Wall seconds of one `python -m sim.evaluate` run (a fresh output folder), its CPU seconds (the process and
     the children it reaped: complete for the local engine; None for Ray, whose workers are its instance's children)
-    and, for Ray, its phases (PHASES); raises if it fails."""
+    and, for Ray, its phases (PHASES); raises if it fails. `ray-cluster` runs join an instance started (and
+    stopped) around the timed run."""
     trace = out.with_suffix(".trace.json")
-    env = dict(os.environ, **({TRACE_ENV: str(trace)} if engine == "ray" else {}))
-    cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    started, wall_start = time.perf_counter(), time.time()
-    result = subprocess.run([sys.executable, "-m", "sim.evaluate", *profile, "--engine", engine, "--workers",
-                             str(workers), "--out", str(out)], capture_output=True, text=True, env=env)
-    seconds = time.perf_counter() - started
+    env = dict(os.environ, **({TRACE_ENV: str(trace)} if engine != "local" else {}))
+    command = [sys.executable, "-m", "sim.evaluate", *profile, "--engine", engine.split("-")[0], "--workers",
+               str(workers), "--out", str(out)]
+    if engine == "ray-cluster":
+        _ray_cli("start", "--head", "--port", str(CLUSTER_PORT), "--num-cpus", str(workers),
+                 "--include-dashboard=false", "--disable-usage-stats")
+        command += ["--address", f"127.0.0.1:{CLUSTER_PORT}"]
+    try:
+        cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
+        started, wall_start = time.perf_counter(), time.time()
+        result = subprocess.run(command, capture_output=True, text=True, env=env)
+        seconds = time.perf_counter() - started
+        cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    finally:
+        if engine == "ray-cluster":
+            _ray_cli("stop")
     if result.returncode != 0:
         raise RuntimeError(f"{engine} x{workers} failed ({result.returncode}): {result.stderr[-2000:]}")
-    cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = cpu_after.ru_utime + cpu_after.ru_stime - cpu_before.ru_utime - cpu_before.ru_stime
-    if engine != "ray":
+    if engine == "local":
         return seconds, cpu, {}
     recorded = json.loads(trace.read_text())
     phases = {title: phase(recorded["stamps"], recorded["tasks"], recorded["packed_bytes"], wall_start)
@@ -99,28 +125,35 @@ def report(times: dict[tuple[str, int], list[float]], loads: list[float], comman
     rows = [f"| {engine} | {workers} | {median[(engine, workers)]:.1f} | "
             f"{', '.join(f'{t:.1f}' for t in times[(engine, workers)])} | "
             f"{f'{statistics.median(cpus[(engine, workers)]):.1f}' if cpus.get((engine, workers)) else '—'} |"
-            for engine, workers in CONFIGS]
+            for engine, workers in CONFIGS if (engine, workers) in times]
+    engines = [e for e in ENGINES if (e, 1) in median and (e, 2) in median]
     lines = [
         f"Measured with `{command}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, on a 2-core machine "
         f"shared with other jobs: 1-minute load average {min(loads):.1f}-{max(loads):.1f} "
         f"(median {statistics.median(loads):.1f}) before the runs. Wall time of a whole `python -m sim.evaluate` "
-        "process (Ray: including starting and stopping the local Ray instance); configurations take turns.", "",
+        "process (`ray`: including starting and stopping the local Ray instance; `ray-cluster`: joining one started "
+        "beforehand); configurations take turns.", "",
         "| engine | workers | median wall (s) | runs (s) | median CPU (s) |", "|---|---|---|---|---|", *rows, "",
         "CPU: the run's process and the processes it reaped (user + system); not measured for Ray, whose workers "
         "are its instance's children.", "",
         "| figure | value |", "|---|---|",
-        *(f"| speedup of 2 workers over 1, {e} | {median[(e, 1)] / median[(e, 2)]:.2f}x |" for e in ("local", "ray")),
-        *(f"| Ray overhead over local, {w} worker(s) | {100 * (median[('ray', w)] / median[('local', w)] - 1):+.1f} % |"
-          for w in (1, 2)),
+        *(f"| speedup of 2 workers over 1, {e} | {median[(e, 1)] / median[(e, 2)]:.2f}x |" for e in engines),
+        *(f"| {ENGINE_NAMES[e]} overhead over local, {w} worker(s) | "
+          f"{100 * (median[(e, w)] / median[('local', w)] - 1):+.1f} % |" for e in engines[1:] for w in (1, 2)),
     ]
     ray_configs = [c for c in CONFIGS if phases.get(c)]
     if ray_configs:
         lines += ["", "Where a Ray run's wall time goes (median over its runs; the Ray engine's time stamps):", "",
                   f"| phase | {' | '.join(f'{e} x{w}' for e, w in ray_configs)} |",
                   "|---" * (1 + len(ray_configs)) + "|",
-                  *(f"| {title} | " + " | ".join(f"{statistics.median(p[title] for p in phases[c]):.2f}"
-                                                  for c in ray_configs) + " |" for title, _ in PHASES)]
+                  *(f"| {title} | " + " | ".join(_median_cell([p[title] for p in phases[c]]) for c in ray_configs)
+                    + " |" for title, _ in PHASES)]
     return "\n".join(lines) + "\n"
+
+
+def _median_cell(values: list[float]) -> str:
+    finite = [v for v in values if v == v]
+    return f"{statistics.median(finite):.2f}" if finite else "—"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
