@@ -91,3 +91,19 @@ def test_a_killed_ray_worker_loses_and_duplicates_no_trial(runs) -> None:
     assert len(keys) == len(set(keys)) == len(JsonLines(local / "trials.jsonl").read())
     summary = json.loads((ray_run / "summary.json").read_text())["run"]
     assert summary["recorded_trials"] == summary["expected_trials"] and not summary["crashed_tasks"]
+
+
+def test_a_cluster_that_cannot_be_joined_is_a_clear_error(tmp_path, monkeypatch, capsys) -> None:
+    import ray
+
+    from sim.evaluate.cli import main
+
+    def refuse(*args, **kwargs):
+        raise ConnectionError("Failed to connect to Ray cluster at 10.0.0.9:6379")
+
+    monkeypatch.setattr(ray, "init", refuse)
+    code = main(["--objects", "mug_classic", "--methods", "coarse", "--engine", "ray",
+                 "--address", "10.0.0.9:6379", "--out", str(tmp_path / "out")])
+    assert code == 2
+    message = capsys.readouterr().err
+    assert "cannot join the Ray cluster at 10.0.0.9:6379" in message and "RAY_AUTH_MODE=token" in message

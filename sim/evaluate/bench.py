@@ -5,8 +5,8 @@ hits all of them alike); writes the table of medians, speedups and Ray's overhea
 
 Two Ray configurations: `ray` starts and stops a local instance inside the run (what `--engine ray` without
 `--address` does), `ray-cluster` joins an instance started beforehand with `ray start --head --num-cpus W` (what a
-run on a cluster does; starting and stopping that instance is not timed, and `ray stop` ends every Ray process of
-the machine after each such run).
+run on a cluster does, with token authentication; starting and stopping that instance is not timed, and `ray stop`
+ends every Ray process of the machine after each such run).
 
     nice python -m sim.evaluate.bench --rounds 2 --profile "--quick --seeds 0-1" --write docs/results/evaluate-scale.md
 
@@ -49,14 +49,15 @@ PHASES = (
     ("tasks in the workers (s, sum)", lambda s, t, b, t0: sum(x["finished"] - x["started"] for x in t)),
     ("hand-over: a task's end in its worker to its records written (s, mean)",
      lambda s, t, b, t0: statistics.mean(x["received"] - x["finished"] for x in t)),
-    ("last task done to Ray stopped (s; the summary is written meanwhile; — when joined)",
+    ("last task done to Ray stopped, or left when joined (s; the summary is written meanwhile)",
      lambda s, t, b, t0: s["stopped"] - s["done"] if "stopped" in s else float("nan")),
 )
 
 
-def _ray_cli(*arguments: str) -> None:
+def _ray_cli(*arguments: str, env: dict | None = None) -> None:
     """Run the `ray` command line (of this interpreter's Ray) and raise if it fails."""
-    result = subprocess.run([sys.executable, "-m", "ray.scripts.scripts", *arguments], capture_output=True, text=True)
+    result = subprocess.run([sys.executable, "-m", "ray.scripts.scripts", *arguments], capture_output=True, text=True,
+                            env=env)
     if result.returncode != 0:
         raise RuntimeError(f"ray {' '.join(arguments)} failed ({result.returncode}): {result.stderr[-2000:]}")
 
@@ -70,9 +71,11 @@ def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> tu
     env = dict(os.environ, **({TRACE_ENV: str(trace)} if engine != "local" else {}))
     command = [sys.executable, "-m", "sim.evaluate", *profile, "--engine", engine.split("-")[0], "--workers",
                str(workers), "--out", str(out)]
-    if engine == "ray-cluster":
+    if engine == "ray-cluster":  # token authentication, as a cluster of Ray >= 2.59 has (README)
+        env["RAY_AUTH_MODE"] = "token"
+        _ray_cli("get-auth-token", "--generate", env=env)
         _ray_cli("start", "--head", "--port", str(CLUSTER_PORT), "--num-cpus", str(workers),
-                 "--include-dashboard=false", "--disable-usage-stats")
+                 "--include-dashboard=false", "--disable-usage-stats", env=env)
         command += ["--address", f"127.0.0.1:{CLUSTER_PORT}"]
     try:
         cpu_before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -82,7 +85,7 @@ def time_run(engine: str, workers: int, profile: Sequence[str], out: Path) -> tu
         cpu_after = resource.getrusage(resource.RUSAGE_CHILDREN)
     finally:
         if engine == "ray-cluster":
-            _ray_cli("stop")
+            _ray_cli("stop", env=env)
     if result.returncode != 0:
         raise RuntimeError(f"{engine} x{workers} failed ({result.returncode}): {result.stderr[-2000:]}")
     cpu = cpu_after.ru_utime + cpu_after.ru_stime - cpu_before.ru_utime - cpu_before.ru_stime

@@ -89,7 +89,13 @@ def _connect(workers: int, address: str | None) -> bool:
         return False
     options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
     if address:
-        ray.init(address=address, **options)
+        try:
+            ray.init(address=address, **options)
+        except ConnectionError as exc:
+            raise ValueError(f"cannot join the Ray cluster at {address}: {str(exc).splitlines()[0]}. A cluster of "
+                             f"Ray 2.59 or later may require its token: set RAY_AUTH_MODE=token and give this "
+                             f"machine the head's token (`ray get-auth-token` on the head) in ~/.ray/auth_token or "
+                             f"RAY_AUTH_TOKEN (README, 'Running on a Ray cluster')") from exc
     else:
         # "local": a new instance of our own, even when a `ray start` cluster runs on this machine
         ray.init(address="local", num_cpus=workers, object_store_memory=256 * 1024**2, **options)
