@@ -629,6 +629,11 @@ def main(argv: list[str] | None = None) -> int:
         items += [subdivided(source, int(n)) for n in args.big_faces.split(",")]
     named = [w for w in wanted if w not in ("twin", "primitives", "multipart", "ycb", "big", "perceived")]
     pool = {i.name: i for i in twin + primitive_meshes()}
+    if any(name not in pool for name in named):  # one of the YCB scans by its name (e.g. 048_hammer)?
+        try:
+            pool.update({i.name: i for i in ycb_meshes()})
+        except FileNotFoundError:
+            pass
     for name in named:
         if name not in pool:
             parser.error(f"unknown mesh {name!r}; known: {sorted(pool)}")

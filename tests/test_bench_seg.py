@@ -2,6 +2,7 @@
 
 import re
 import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -63,6 +64,15 @@ def test_ycb_set_without_the_scans_is_a_clear_error(monkeypatch, tmp_path, capsy
     with pytest.raises(SystemExit):
         bench_seg.main(["--meshes", "ycb", "--quality"])
     assert "YCB scans not found" in capsys.readouterr().err
+
+
+def test_a_ycb_scan_is_selected_by_its_name(monkeypatch):
+    scan = types.SimpleNamespace(name="048_hammer")
+    monkeypatch.setattr(bench_seg, "ycb_meshes", lambda: [scan])
+    chosen = []
+    monkeypatch.setattr(bench_seg, "quality", lambda items, args: chosen.extend(items))
+    assert bench_seg.main(["--meshes", "048_hammer", "--quality"]) == 0
+    assert chosen == [scan]
 
 
 def test_perceived_mesh_is_a_closed_reconstruction_labelled_from_the_source(twin_knife):
