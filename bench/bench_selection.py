@@ -19,13 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from seggrasp.io import atomic_write_text
 
 TARGETS = ("coarse", "shapegrasp")
 SHOWN = ("seggrasp", "seggrasp-nearest", "anchored", "seggrasp-agree", "coarse", "shapegrasp", "oracle")
@@ -33,18 +33,13 @@ BOOTSTRAP = 2000
 
 
 def read_trials(folder: Path) -> list[dict]:
-    """The unique trial records of one run (the last record of a slot wins; a torn last line is skipped)."""
+    """The unique trial records of one run (`sim.evaluate.records.read_unique`: a torn last line is skipped)."""
+    from sim.evaluate.records import read_unique, trial_key
+
     path = folder / "trials.jsonl"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no trials (is {folder} a sim.evaluate output folder?)")
-    slots = {}
-    for line in path.read_text().splitlines():
-        try:
-            r = json.loads(line)
-        except json.JSONDecodeError:
-            continue
-        slots[(r["method"], r["object_id"], r["prompt"], r["rank"])] = r
-    return list(slots.values())
+    return read_unique(path, trial_key)
 
 
 def per_request(trials: list[dict], seed: int) -> dict[str, dict[tuple, np.ndarray]]:
@@ -279,15 +274,6 @@ def planned_section(detector: str, folders: list[Path]) -> list[str]:
     return lines + [""]
 
 
-def atomic_write(path: Path, text: str) -> None:
-    """Write `text` to `path` through a temporary file in the same folder."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, path)
-
-
 def parse_runs(values: list[str]) -> dict[str, list[Path]]:
     """`NAME=DIR,DIR,...` -> {NAME: [DIR, ...]}, each DIR an existing run folder."""
     runs = {}
@@ -327,7 +313,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.planned:
         lines += planned_section(args.planned, runs[args.planned])
     lines += FOOTER
-    atomic_write(Path(args.out), "\n".join(lines) + "\n")
+    atomic_write_text(Path(args.out), "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 
