@@ -1,6 +1,6 @@
 """Grasp selection per request: all-slot Part Sel. and Suc. over several seeds, with paired differences.
 
-Reads the `trials.jsonl` of `python -m sim.evaluate` runs (one folder per seed and detector) and writes
+Reads the `trials.jsonl` of `python -m sim.evaluate` runs (folders of one or several seeds, per detector) and writes
 docs/results/grasp-selection.md (or `--out`):
 
     python bench/bench_selection.py --runs typical=/tmp/select/typ-s0,/tmp/select/typ-s1,/tmp/select/typ-s2 \
@@ -42,11 +42,13 @@ def read_trials(folder: Path) -> list[dict]:
     return read_unique(path, trial_key)
 
 
-def per_request(trials: list[dict], seed: int) -> dict[str, dict[tuple, np.ndarray]]:
+def per_request(trials: list[dict]) -> dict[str, dict[tuple, np.ndarray]]:
     """method -> (seed, object, prompt) -> [Part Sel., Suc. (shares of its slots), executed slots, top-1 Suc.]."""
+    from sim.evaluate.records import seed_of
+
     slots: dict[str, dict[tuple, list[dict]]] = defaultdict(lambda: defaultdict(list))
     for r in trials:
-        slots[r["method"]][(seed, r["object_id"], r["prompt"])].append(r)
+        slots[r["method"]][(seed_of(r), r["object_id"], r["prompt"])].append(r)
     out: dict[str, dict[tuple, np.ndarray]] = {}
     for method, requests in slots.items():
         out[method] = {}
@@ -77,12 +79,11 @@ def paired(
 
 def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[str]]:
     """Markdown lines of one detector's table, paired differences and done-when checks (and the check lines)."""
-    seeds, merged = [], defaultdict(dict)
+    merged = defaultdict(dict)
     for folder in folders:
-        run = json.loads((folder / "run.json").read_text())
-        seeds.append(int(run["seed"]))
-        for method, requests in per_request(read_trials(folder), int(run["seed"])).items():
+        for method, requests in per_request(read_trials(folder)).items():
             merged[method].update(requests)
+    seeds = sorted({key[0] for requests in merged.values() for key in requests})
     methods = [m for m in SHOWN if m in merged] + sorted(m for m in merged if m not in SHOWN)
 
     def seed_mean(method: str, column: int, seed: int) -> float:
@@ -236,6 +237,12 @@ def planned_object(episode, top_k: int) -> dict[str, list[tuple[float, int]]]:
     return results
 
 
+def run_seeds(folder: Path) -> list[int]:
+    """The seeds of one `sim.evaluate` run (`--seeds` runs list them; older one-seed runs name their seed)."""
+    run = json.loads((folder / "run.json").read_text())
+    return [int(s) for s in run["seeds"]] if "seeds" in run else [int(run["seed"])]
+
+
 def planned_section(detector: str, folders: list[Path]) -> list[str]:
     """Markdown lines of the physics-free ablation over the runs' seeds (votes from their caches)."""
     from seggrasp.episode import Episode, EpisodeSettings
@@ -246,10 +253,10 @@ def planned_section(detector: str, folders: list[Path]) -> list[str]:
 
     per_variant: dict[str, dict[int, list[tuple[float, int]]]] = defaultdict(lambda: defaultdict(list))
     seeds = []
-    for folder in folders:
+    for folder, seed in [(f, s) for f in folders for s in run_seeds(f)]:
         run = json.loads((folder / "run.json").read_text())
         config = RunConfig(methods=["seggrasp"], objects=run["objects"], detector=run["detector"],
-                           embodiment=run["embodiment"], seed=run["seed"], top_k=run["top_k"])
+                           embodiment=run["embodiment"], seeds=[seed], top_k=run["top_k"])
         seeds.append(config.seed)
         with SimCell(embodiment=config.embodiment, seed=config.seed) as cell:
             for object_id in config.objects:

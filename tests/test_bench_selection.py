@@ -14,27 +14,35 @@ SLOTS = {"seggrasp": [(True, True), (True, False)], "coarse": [(True, False), No
          "shapegrasp": [(True, False), (True, False)], "oracle": [(True, True), (True, True)]}
 
 
-def write_run(folder: Path, seed: int, requests: list[tuple[str, str]]) -> None:
+def write_run(folder: Path, seeds: list[int], requests: list[tuple[str, str]]) -> None:
     folder.mkdir(parents=True)
-    (folder / "run.json").write_text(json.dumps({"seed": seed, "detector": "typical"}))
+    (folder / "run.json").write_text(json.dumps({"seeds": seeds, "detector": "typical"}))
     lines = []
-    for method, slots in SLOTS.items():
-        for object_id, prompt in requests:
-            for rank, slot in enumerate(slots):
-                on_part, success = slot if slot is not None else (False, False)
-                lines.append(json.dumps({"method": method, "object_id": object_id, "prompt": prompt, "rank": rank,
-                                         "contacts_on_part": on_part, "success": success,
-                                         "executed": slot is not None}))
+    for seed in seeds:
+        for method, slots in SLOTS.items():
+            for object_id, prompt in requests:
+                for rank, slot in enumerate(slots):
+                    on_part, success = slot if slot is not None else (False, False)
+                    lines.append(json.dumps({"method": method, "object_id": object_id, "prompt": prompt,
+                                             "rank": rank, "seed": seed, "contacts_on_part": on_part,
+                                             "success": success, "executed": slot is not None}))
     (folder / "trials.jsonl").write_text("\n".join(lines) + "\n{\"torn")
 
 
-def test_tables_differences_and_checks(tmp_path) -> None:
+@pytest.mark.parametrize("layout", ["a folder per seed", "one folder of two seeds"])
+def test_tables_differences_and_checks(tmp_path, layout) -> None:
     requests = [("mug", "handle"), ("mug", "body"), ("knife", "blade")]
-    write_run(tmp_path / "s0", 0, requests)
-    write_run(tmp_path / "s1", 1, requests)
+    if layout == "a folder per seed":
+        write_run(tmp_path / "s0", [0], requests)
+        write_run(tmp_path / "s1", [1], requests)
+        runs = f"typical={tmp_path / 's0'},{tmp_path / 's1'}"
+    else:
+        write_run(tmp_path / "s01", [0, 1], requests)
+        runs = f"typical={tmp_path / 's01'}"
     out = tmp_path / "doc" / "selection.md"
-    assert bench_selection.main(["--runs", f"typical={tmp_path / 's0'},{tmp_path / 's1'}", "--out", str(out)]) == 0
+    assert bench_selection.main(["--runs", runs, "--out", str(out)]) == 0
     text = out.read_text()
+    assert "## Detector `typical`: seeds 0, 1" in text
     assert "| seggrasp | 1.000 (1.000 / 1.000) | 0.500 (0.500 / 0.500) | 1.000 (1.000 / 1.000) | 6 / 6 (mean 6)" in text
     assert "| seggrasp − coarse | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 |" in text
     assert "| seggrasp − shapegrasp | +0.000 ± 0.000 [+0.000, +0.000], n=6 | +0.500 ± 0.000 [+0.500, +0.500], n=6 | +0.000" in text
