@@ -463,9 +463,10 @@ def quality_records(items: list[LabelledMesh], args) -> list[dict]:
 def _paired(records: list[dict], method: str, against: str) -> tuple[float, float]:
     """Mean over seeds of the per-seed category-mean mIoU difference method - against, and its standard error."""
     seeds = sorted({r["seed"] for r in records})
-    diffs = [mean_over_categories([(r["category"], r["miou"][method] - r["miou"][against])
-                                   for r in records if r["seed"] == s])["overall"] for s in seeds]
-    return float(np.mean(diffs)), float(np.std(diffs, ddof=1) / np.sqrt(len(diffs))) if len(diffs) > 1 else float("nan")
+    per_seed = [[mean_over_categories([(r["category"], r["miou"][m]) for r in records if r["seed"] == s])["overall"]
+                 for s in seeds] for m in (method, against)]
+    gap, se, _ = paired_difference(*per_seed)
+    return gap, se
 
 
 def quality_report(records: list[dict], title: str) -> str:
@@ -512,10 +513,9 @@ def quality_report(records: list[dict], title: str) -> str:
     lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",
               "|---|---|---|---|---|---|"]
     for name, e in sorted(per_mesh.items(), key=lambda kv: (kv[1]["category"], kv[0])):
-        diff = np.subtract(e["miou"]["default"], e["miou"]["full"])
-        se = diff.std(ddof=1) / np.sqrt(diff.size) if diff.size > 1 else float("nan")
+        gap, se, _ = paired_difference(e["miou"]["default"], e["miou"]["full"])
         lines.append(f"| {name} | {e['category']} | {np.mean(e['miou']['none']):.3f} | {np.mean(e['miou']['full']):.3f} "
-                     f"| {np.mean(e['miou']['default']):.3f} | {diff.mean():+.3f} +- {se:.3f} |")
+                     f"| {np.mean(e['miou']['default']):.3f} | {gap:+.3f} +- {se:.3f} |")
     return "\n".join(lines) + "\n"
 
 
