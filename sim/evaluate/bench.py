@@ -32,8 +32,9 @@ from typing import Sequence
 from seggrasp.io import atomic_write_text
 from sim.evaluate.ray_engine import TRACE_ENV
 
-CONFIGS = (("local", 1), ("local", 2), ("ray", 1), ("ray", 2), ("ray-cluster", 1), ("ray-cluster", 2))
+#: `ray`: the run starts and stops its own local instance; `ray-cluster`: it joins one started beforehand.
 ENGINES = ("local", "ray", "ray-cluster")
+CONFIGS = tuple((engine, workers) for engine in ENGINES for workers in (1, 2))
 ENGINE_NAMES = {"ray": "Ray", "ray-cluster": "Ray joining a running instance"}
 #: The port of the instance the `ray-cluster` configurations join (not Ray's default, to keep clear of a user's).
 CLUSTER_PORT = 6391
