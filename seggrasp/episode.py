@@ -359,10 +359,7 @@ class Episode:
         record.width = width
         record.T_world_grasp = np.round(T_world_grasp, 6).tolist()
         record.quaternion_xyzw = Rotation.from_matrix(T_world_grasp[:3, :3]).as_quat().tolist()
-        if self.truth is not None and slot.planned:  # a planned grasp whose pads touch nothing is not on the part
-            o = self.observation
-            record.contacts_on_part = self.truth.contacts_on_part(slot.grasp.contacts[0], o.T_world_obj, o.perceived,
-                                                                  slot.prompt_index)
+        record.contacts_on_part = self.contacts_on_part(slot)
         outcome = self._outcome(T_world_grasp, width, reset, record)
         record.executed = True
         record.reachable = bool(outcome.reachable)
@@ -377,6 +374,17 @@ class Episode:
             record.success = bool(outcome.lifted and on_part)
         record.failure = failure_of(outcome, record.success, on_part)
         return record
+
+    def contacts_on_part(self, slot: Slot) -> bool | None:
+        """Part Sel. of a slot from its planned contacts, without executing it: False for a slot without a grasp
+        or whose grasp's pads touch nothing (non-finite contacts); None without ground truth or for a grasp given
+        from outside (no planned contacts)."""
+        if self.truth is None or not slot.planned:
+            return None
+        if slot.grasp is None:
+            return False
+        o = self.observation
+        return self.truth.contacts_on_part(slot.grasp.contacts[0], o.T_world_obj, o.perceived, slot.prompt_index)
 
     def _outcome(self, T_world_grasp: np.ndarray, width: float, reset: bool, record: TrialRecord) -> GraspOutcome:
         key = grasp_key(T_world_grasp, width)
