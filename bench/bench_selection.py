@@ -462,9 +462,10 @@ FOOTER = [
     "",
     "Part Sel. over all slots counts every slot of a request, also where no grasp of the sampler touches the part",
     "alone (flat blades, closed scissors, folded eyeglasses: the oracle executes nothing there). `shapegrasp` fills",
-    "those slots with its top-down grasp at the part's centroid, whose planned contacts (ray hits) lie on the part",
-    "although the grasp almost never lifts; `seggrasp` abstains there. The graspable-request columns compare both",
-    "where a grasp on the part exists.",
+    "those slots with its top-down grasp at the part's centroid; its planned contacts are where its pads first meet",
+    "the surface, and a grasp whose pads pass above a low part touches nothing and fails Part Sel. (runs before",
+    "docs/results/shapegrasp-contacts.md credited it with the face nearest the grasp origin). `seggrasp` abstains",
+    "there. The graspable-request columns compare both where a grasp on the part exists.",
 ]
 
 if __name__ == "__main__":
