@@ -12,7 +12,12 @@ contacts lie on the prompted part / that lifted the object by it (a slot without
 differences are taken over the requests both methods have, with the standard error and a 95 % bootstrap interval
 over requests. `--planned DETECTOR` adds a physics-free ablation of the selection policy on that detector's runs:
 every variant's Part Sel. from its planned contacts (the benchmark's own ground-truth test), using the runs' cached
-votes and the same grasp candidates the episode samples.
+votes and the same grasp candidates the episode samples. `--replan DETECTOR` instead plans `--methods` again on
+that detector's runs (no physics) and compares their Part Sel. per category with what the runs recorded, and with
+`--rerun` folders (runs of this checkout) their Part Sel. and Suc.; `--seeds` keeps only those run seeds:
+
+    python bench/bench_selection.py --runs typical=/tmp/lead/s5 --replan typical --methods shapegrasp,seggrasp,oracle \
+        --rerun /tmp/contacts/sg-s0,/tmp/contacts/sg-s12 --seeds 0,1,2 --out docs/results/shapegrasp-contacts.md
 """
 
 from __future__ import annotations
@@ -357,8 +362,9 @@ def replan_section(detector: str, folders: list[Path], methods: list[str], only_
                   "| method | category | slots | Part Sel. before | Part Sel. after | Suc. before | Suc. after |",
                   "|---|---|---|---|---|---|---|"]
         for method in ran:
-            lines += category_rows(recorded, again, method, [("contacts_on_part", "before"), ("contacts_on_part", "after"),
-                                                             ("success", "before"), ("success", "after")])
+            columns = [("contacts_on_part", "before"), ("contacts_on_part", "after"), ("success", "before"),
+                       ("success", "after")]
+            lines += category_rows(recorded, again, method, columns)
     return lines + [""]
 
 
@@ -407,7 +413,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     options = [f"--runs {v}" for v in args.runs] + ([f"--planned {args.planned}"] if args.planned else [])
     if args.replan:
-        options += [f"--replan {args.replan} --methods {','.join(methods)}"] + ([f"--rerun {args.rerun}"] if rerun else [])
+        options += [f"--replan {args.replan} --methods {','.join(methods)}"]
+        options += [f"--rerun {args.rerun}"] if rerun else []
     options += [f"--seeds {args.seeds}"] if only_seeds else []
     command = "python bench/bench_selection.py " + " ".join(options + [f"--out {args.out}"])
     if args.replan:

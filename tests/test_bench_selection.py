@@ -76,7 +76,8 @@ def test_category_rows_compare_the_slots_both_record_per_category() -> None:
     rows = bench_selection.category_rows(before, after, "shapegrasp", [("contacts_on_part", "before"),
                                                                        ("contacts_on_part", "after"),
                                                                        ("success", "after")])
-    assert rows == ["| shapegrasp | knife | 2 | 1.000 | 0.000 | 1.000 |", "| shapegrasp | mug | 1 | 1.000 | 1.000 | 0.000 |",
+    assert rows == ["| shapegrasp | knife | 2 | 1.000 | 0.000 | 1.000 |",
+                    "| shapegrasp | mug | 1 | 1.000 | 1.000 | 0.000 |",
                     "| shapegrasp | all | 3 | 1.000 | 0.333 | 0.667 |"]
 
 

@@ -15,7 +15,8 @@ from seggrasp.truth import GroundTruth
 
 def two_parts(first: trimesh.Trimesh, second: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
     """One mesh of two parts and the part (also the prompt) of each face."""
-    return trimesh.util.concatenate([first, second]), np.r_[np.zeros(len(first.faces), int), np.ones(len(second.faces), int)]
+    part_of_face = np.r_[np.zeros(len(first.faces), int), np.ones(len(second.faces), int)]
+    return trimesh.util.concatenate([first, second]), part_of_face
 
 
 def votes_for_parts(n_parts: int) -> np.ndarray:
