@@ -12,7 +12,12 @@ contacts lie on the prompted part / that lifted the object by it (a slot without
 differences are taken over the requests both methods have, with the standard error and a 95 % bootstrap interval
 over requests. `--planned DETECTOR` adds a physics-free ablation of the selection policy on that detector's runs:
 every variant's Part Sel. from its planned contacts (the benchmark's own ground-truth test), using the runs' cached
-votes and the same grasp candidates the episode samples.
+votes and the same grasp candidates the episode samples. `--replan DETECTOR` instead plans `--methods` again on
+that detector's runs (no physics) and compares their Part Sel. per category with what the runs recorded, and with
+`--rerun` folders (runs of this checkout) their Part Sel. and Suc.; `--seeds` keeps only those run seeds:
+
+    python bench/bench_selection.py --runs typical=/tmp/lead/s5 --replan typical --methods shapegrasp,seggrasp,oracle \
+        --rerun /tmp/contacts/sg-s0,/tmp/contacts/sg-s12 --seeds 0,1,2 --out docs/results/shapegrasp-contacts.md
 """
 
 from __future__ import annotations
@@ -77,12 +82,14 @@ def paired(
     return float(d.mean()), float(d.std(ddof=1) / np.sqrt(len(d))), float(lo), float(hi), len(d)
 
 
-def detector_section(name: str, folders: list[Path]) -> tuple[list[str], list[str]]:
-    """Markdown lines of one detector's table, paired differences and done-when checks (and the check lines)."""
+def detector_section(name: str, folders: list[Path], only_seeds: set[int] | None = None) -> tuple[list[str], list[str]]:
+    """Markdown lines of one detector's table, paired differences and done-when checks (and the check lines), over
+    the seeds in `only_seeds` (default: all)."""
     merged = defaultdict(dict)
     for folder in folders:
         for method, requests in per_request(read_trials(folder)).items():
-            merged[method].update(requests)
+            merged[method].update({k: v for k, v in requests.items() if only_seeds is None or k[0] in only_seeds})
+    merged = defaultdict(dict, {method: requests for method, requests in merged.items() if requests})
     seeds = sorted({key[0] for requests in merged.values() for key in requests})
     methods = [m for m in SHOWN if m in merged] + sorted(m for m in merged if m not in SHOWN)
 
@@ -243,30 +250,39 @@ def run_seeds(folder: Path) -> list[int]:
     return [int(s) for s in run["seeds"]] if "seeds" in run else [int(run["seed"])]
 
 
-def planned_section(detector: str, folders: list[Path]) -> list[str]:
-    """Markdown lines of the physics-free ablation over the runs' seeds (votes from their caches)."""
+def run_episodes(folders: list[Path], only_seeds: set[int] | None = None):
+    """(seed, episode) for every object and seed of the runs in `folders` (those in `only_seeds` if given): the
+    run's scenes, detector, decomposition seed and cached votes, planned again by this checkout's code."""
     from seggrasp.episode import Episode, EpisodeSettings
     from sim.cell import SimCell
-    from sim.evaluate.config import RunConfig
+    from sim.evaluate.config import DECOMPOSITION_SEED, RunConfig
     from sim.evaluate.records import VoteCache
     from sim.evaluate.runner import subject_of
 
+    for folder in folders:
+        run = json.loads((folder / "run.json").read_text())
+        for seed in [s for s in run_seeds(folder) if only_seeds is None or s in only_seeds]:
+            config = RunConfig(methods=["seggrasp"], objects=run["objects"], detector=run["detector"],
+                               embodiment=run["embodiment"], seeds=[seed], top_k=run["top_k"],
+                               decomposition_seed=run.get("decomposition_seed", DECOMPOSITION_SEED))
+            settings = EpisodeSettings(seed=seed, top_k=config.top_k, decomposition_seed=config.decomposition_seed)
+            with SimCell(embodiment=config.embodiment, seed=seed) as cell:
+                for object_id in config.objects:
+                    context, truth = subject_of(object_id, config, cell)
+                    yield seed, Episode(cell, context, config.object_detector(object_id), truth, settings,
+                                        vote_cache=VoteCache(folder / "cache" / object_id))
+                    print(f"planned: seed {seed} {object_id}", file=sys.stderr, flush=True)
+
+
+def planned_section(detector: str, folders: list[Path], only_seeds: set[int] | None = None) -> list[str]:
+    """Markdown lines of the physics-free ablation over the runs' seeds (votes from their caches)."""
     per_variant: dict[str, dict[int, list[tuple[float, int]]]] = defaultdict(lambda: defaultdict(list))
     seeds = []
-    for folder, seed in [(f, s) for f in folders for s in run_seeds(f)]:
-        run = json.loads((folder / "run.json").read_text())
-        config = RunConfig(methods=["seggrasp"], objects=run["objects"], detector=run["detector"],
-                           embodiment=run["embodiment"], seeds=[seed], top_k=run["top_k"])
-        seeds.append(config.seed)
-        with SimCell(embodiment=config.embodiment, seed=config.seed) as cell:
-            for object_id in config.objects:
-                context, truth = subject_of(object_id, config, cell)
-                episode = Episode(cell, context, config.object_detector(object_id), truth,
-                                  EpisodeSettings(seed=config.seed, top_k=config.top_k),
-                                  vote_cache=VoteCache(folder / "cache" / object_id))
-                for name, rows in planned_object(episode, config.top_k).items():
-                    per_variant[name][config.seed] += rows
-                print(f"planned: seed {config.seed} {object_id}", file=sys.stderr, flush=True)
+    for seed, episode in run_episodes(folders, only_seeds):
+        if seed not in seeds:
+            seeds.append(seed)
+        for name, rows in planned_object(episode, episode.settings.top_k).items():
+            per_variant[name][seed] += rows
     lines = [f"## Ablation of the selection without physics (detector `{detector}`, seeds "
              f"{', '.join(map(str, seeds))})", "",
              "Part Sel. over all top-10 slots from the planned contacts (both contacts' nearest faces on the prompted",
@@ -278,6 +294,77 @@ def planned_section(detector: str, folders: list[Path]) -> list[str]:
         ex = [sum(r[1] for r in by_seed[s]) for s in seeds]
         lines.append(f"| {name} | {np.mean(ps):.3f} ({' / '.join(f'{v:.3f}' for v in ps)}) | "
                      f"{' / '.join(map(str, ex))} |")
+    return lines + [""]
+
+
+def replanned_trials(folders: list[Path], methods: list[str], only_seeds: set[int] | None) -> list[dict]:
+    """Trial-like records of `methods`' slots planned again without physics on the runs' scenes: Part Sel. from
+    the planned contacts as the episode scores them (`Episode.contacts_on_part`), and whether the slot's grasp
+    touches anything (finite contacts)."""
+    records = []
+    for seed, episode in run_episodes(folders, only_seeds):
+        context = episode.context
+        for method in methods:
+            for slot in episode.slots(episode.plan(method)):
+                touches = slot.grasp is not None and bool(np.isfinite(slot.grasp.contacts).all())
+                records.append({"object_id": context.object_id, "category": context.category, "method": method,
+                                "prompt": context.prompts[slot.prompt_index], "rank": slot.rank, "seed": seed,
+                                "contacts_on_part": episode.contacts_on_part(slot), "touches": touches,
+                                "executed": slot.grasp is not None})
+    return records
+
+
+def rate(rows: list[dict], key: str) -> str:
+    """Share of `rows` whose `key` is true (a missing or None value counts as false), or — without rows."""
+    return f"{np.mean([bool(r.get(key)) for r in rows]):.3f}" if rows else "—"
+
+
+def category_rows(before: list[dict], after: list[dict], method: str, columns: list[tuple[str, str]]) -> list[str]:
+    """Table rows per category and overall: for each (key, which) column the share in `before` or `after`, over
+    the (seed, object, prompt, rank) slots of `method` that both hold."""
+    from sim.evaluate.records import trial_key
+
+    old = {trial_key(r): r for r in before if r["method"] == method}
+    new = {trial_key(r): r for r in after if r["method"] == method}
+    keys = sorted(set(old) & set(new))
+    category = {k: old[k].get("category") or new[k].get("category") for k in keys}
+    lines = []
+    for name in sorted(set(category.values())) + ["all"]:
+        chosen = [k for k in keys if name in ("all", category[k])]
+        cells = [rate([(old if which == "before" else new)[k] for k in chosen], key) for key, which in columns]
+        lines.append(f"| {method} | {name} | {len(chosen)} | {' | '.join(cells)} |")
+    return lines
+
+
+def replan_section(detector: str, folders: list[Path], methods: list[str], only_seeds: set[int] | None,
+                   rerun: list[Path]) -> list[str]:
+    """Markdown lines: per method and category, the all-slot Part Sel. the runs recorded and the one this
+    checkout plans on the same scenes (no physics); with `rerun` folders (runs of this checkout), also their
+    recorded Part Sel. and Suc. beside the original runs'."""
+    recorded = [r for f in folders for r in read_trials(f) if only_seeds is None or r.get("seed", 0) in only_seeds]
+    replanned = replanned_trials(folders, methods, only_seeds)
+    seeds = sorted({r["seed"] for r in replanned})
+    lines = [f"## Planned contacts again, without physics (detector `{detector}`, seeds {', '.join(map(str, seeds))})",
+             "", "All-slot Part Sel. (both planned contacts nearest to faces of the prompted part; a slot without a",
+             "grasp, or whose pads touch nothing, fails) as the runs recorded it and as this checkout plans it on the",
+             "same scenes, detector errors and cached votes; `touches`: share of slots whose pads meet the object.", "",
+             "| method | category | slots | Part Sel. recorded | Part Sel. planned now | touches (planned now) |",
+             "|---|---|---|---|---|---|"]
+    for method in methods:
+        lines += category_rows(recorded, replanned, method,
+                               [("contacts_on_part", "before"), ("contacts_on_part", "after"), ("touches", "after")])
+    if rerun:
+        again = [r for f in rerun for r in read_trials(f) if only_seeds is None or r.get("seed", 0) in only_seeds]
+        ran = sorted({r["method"] for r in again})
+        lines += ["", f"## Executed again: {', '.join(map(str, rerun))}", "",
+                  "The same slots executed on the twin by this checkout (`sim.evaluate`, same seeds and scenes) beside",
+                  "the original runs: all-slot Part Sel. and Suc.", "",
+                  "| method | category | slots | Part Sel. before | Part Sel. after | Suc. before | Suc. after |",
+                  "|---|---|---|---|---|---|---|"]
+        for method in ran:
+            columns = [("contacts_on_part", "before"), ("contacts_on_part", "after"), ("success", "before"),
+                       ("success", "after")]
+            lines += category_rows(recorded, again, method, columns)
     return lines + [""]
 
 
@@ -300,31 +387,58 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--runs", action="append", required=True, help="DETECTOR=DIR,DIR,... (one folder per seed)")
     parser.add_argument("--planned", help="also run the physics-free policy ablation on this detector's runs")
+    parser.add_argument("--replan", metavar="DETECTOR",
+                        help="instead: plan --methods again on this detector's runs without physics and compare "
+                             "their Part Sel. per category with what the runs recorded")
+    parser.add_argument("--methods", default="shapegrasp,seggrasp,oracle", help="--replan: comma-separated methods")
+    parser.add_argument("--rerun", default="", help="--replan: comma-separated folders of runs of this checkout on "
+                        "the same seeds, compared with the original runs per category (Part Sel., Suc.)")
+    parser.add_argument("--seeds", default="", help="only these run seeds, comma-separated (default: all)")
     parser.add_argument("--out", default="docs/results/grasp-selection.md")
     args = parser.parse_args(argv)
     try:
         runs = parse_runs(args.runs)
-        if args.planned and args.planned not in runs:
-            raise ValueError(f"--planned {args.planned}: no --runs for that detector")
+        for option, detector in (("--planned", args.planned), ("--replan", args.replan)):
+            if detector and detector not in runs:
+                raise ValueError(f"{option} {detector}: no --runs for that detector")
+        only_seeds = {int(v) for v in args.seeds.split(",") if v.strip()} or None
+        rerun = parse_runs([f"rerun={args.rerun}"])["rerun"] if args.rerun else []
+        methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+        from seggrasp.method import check_method
+
+        for method in methods:
+            check_method(method)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     options = [f"--runs {v}" for v in args.runs] + ([f"--planned {args.planned}"] if args.planned else [])
+    if args.replan:
+        options += [f"--replan {args.replan} --methods {','.join(methods)}"]
+        options += [f"--rerun {args.rerun}"] if rerun else []
+    options += [f"--seeds {args.seeds}"] if only_seeds else []
     command = "python bench/bench_selection.py " + " ".join(options + [f"--out {args.out}"])
-    lines = [*HEADER, "", "Regenerate: `" + command + "`", ""]
-    all_checks = []
-    for name, folders in runs.items():
-        section, checks = detector_section(name, folders)
-        lines += section + [""]
-        all_checks += checks
-    if args.planned:
-        lines += planned_section(args.planned, runs[args.planned])
-    lines += FOOTER
+    if args.replan:
+        lines = [*REPLAN_HEADER, "", "Regenerate: `" + command + "`", "",
+                 *replan_section(args.replan, runs[args.replan], methods, only_seeds, rerun)]
+    else:
+        lines = [*HEADER, "", "Regenerate: `" + command + "`", ""]
+        for name, folders in runs.items():
+            lines += detector_section(name, folders, only_seeds)[0] + [""]
+        if args.planned:
+            lines += planned_section(args.planned, runs[args.planned], only_seeds)
+        lines += FOOTER
     atomic_write_text(Path(args.out), "\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0
 
 
+REPLAN_HEADER = [
+    "# Planned contacts of a run, again with this checkout",
+    "",
+    "Written by `bench/bench_selection.py --replan` from `python -m sim.evaluate` runs on the full twin: the methods'",
+    "slots planned again on the runs' scenes (same detector errors, cached votes and decomposition seed), scored by",
+    "the episode's own Part Sel. test without executing them.",
+]
 HEADER = [
     "# Grasp selection: which grasps `seggrasp` executes for a request",
     "",
@@ -355,9 +469,10 @@ FOOTER = [
     "",
     "Part Sel. over all slots counts every slot of a request, also where no grasp of the sampler touches the part",
     "alone (flat blades, closed scissors, folded eyeglasses: the oracle executes nothing there). `shapegrasp` fills",
-    "those slots with its top-down grasp at the part's centroid, whose planned contacts (ray hits) lie on the part",
-    "although the grasp almost never lifts; `seggrasp` abstains there. The graspable-request columns compare both",
-    "where a grasp on the part exists.",
+    "those slots with its top-down grasp at the part's centroid; its planned contacts are where its pads first meet",
+    "the surface, and a grasp whose pads pass above a low part touches nothing and fails Part Sel. (runs before",
+    "docs/results/shapegrasp-contacts.md credited it with the face nearest the grasp origin). `seggrasp` abstains",
+    "there. The graspable-request columns compare both where a grasp on the part exists.",
 ]
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ import numpy as np
 import trimesh
 
 from seggrasp.fusion import assign_parts_to_prompts
+from seggrasp.grasp.antipodal import pad_contacts
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 from seggrasp.labels import UNKNOWN
 
@@ -27,6 +28,10 @@ LOG = logging.getLogger(__name__)
 SHAPEGRASP_CLOSING_AXIS = np.array([1.0, 0.0, 0.0])
 #: Height of the fingertips above the table top when a part's centroid is too low to grasp at.
 TABLE_CLEARANCE = 0.005
+#: Spacing (m), point-count bounds and seed of the surface sample the pads sweep (`pad_sweep_cloud`).
+CLOUD_SPACING = 0.002
+CLOUD_POINTS = (2000, 40000)
+CLOUD_SEED = 0
 
 
 def shapegrasp_labels(votes: np.ndarray, part_of_face: np.ndarray) -> np.ndarray:
@@ -51,8 +56,10 @@ def shapegrasp_grasps(
 
     The grasp sits at the chosen part's centroid (raised so the fingertips clear the table, whose top is taken as
     the object's lowest point in the world), approaches straight down in the world and closes along the fixed
-    world axis `SHAPEGRASP_CLOSING_AXIS`. Its contacts are where the fingers, closing from fully open along that
-    line, first meet the mesh.
+    world axis `SHAPEGRASP_CLOSING_AXIS`. Its contacts are where the pads, closing from fully open, first meet
+    the surface (`pad_contacts`, the sampler's pad sweep) and its width their distance; where the pads sweep no
+    surface (a part lower than the pads, or off their width) the contacts are NaN (the grasp touches nothing) and the
+    width the full opening.
     """
     part_of_face = np.asarray(part_of_face, dtype=np.int64)
     T_world_obj = np.asarray(T_world_obj, dtype=np.float64)
@@ -64,6 +71,7 @@ def shapegrasp_grasps(
     approach = np.array([0.0, 0.0, -1.0])
     rotation = np.column_stack([closing, np.cross(approach, closing), approach])
 
+    cloud = pad_sweep_cloud(mesh)
     grasps = []
     for k, part in enumerate(assign_parts_to_prompts(votes)):
         if part < 0:
@@ -77,21 +85,17 @@ def shapegrasp_grasps(
         T_world_grasp[:3, 3] = T_world_obj[:3, :3] @ centroid + T_world_obj[:3, 3]
         T_world_grasp[2, 3] = max(T_world_grasp[2, 3], lowest_origin)
         T_obj_grasp = T_obj_world @ T_world_grasp
-        contacts, width = _closing_contacts(mesh, T_obj_grasp, gripper.max_opening)
-        grasps.append(GraspSet(T_obj_grasp[None], [width], [float(votes[part, k])], contacts[None]))
+        contacts, widths = pad_contacts(T_obj_grasp[None], gripper.max_opening, cloud)
+        # a grasp whose pads sweep nothing closes on air from the full opening (its contacts stay NaN)
+        width = float(widths[0]) if np.isfinite(widths[0]) else gripper.max_opening
+        grasps.append(GraspSet(T_obj_grasp[None], [width], [float(votes[part, k])], contacts))
         LOG.debug("shapegrasp: prompt %d -> part %d of %d, width %.3f", k, part, votes.shape[0], width)
     return grasps
 
 
-def _closing_contacts(mesh: trimesh.Trimesh, T_obj_grasp: np.ndarray, opening: float) -> tuple[np.ndarray, float]:
-    """Where two fingers closing from `opening` along the grasp's x axis first touch the mesh (object frame)."""
-    origin, x_axis = T_obj_grasp[:3, 3], T_obj_grasp[:3, 0]
-    starts = np.array([origin - 0.5 * opening * x_axis, origin + 0.5 * opening * x_axis])
-    directions = np.array([x_axis, -x_axis])
-    locations, ray_index, _ = mesh.ray.intersects_location(starts, directions, multiple_hits=False)
-    contacts = starts.copy()  # a finger that meets nothing closes to the centre line
-    contacts[:] = origin
-    for location, ray in zip(locations, ray_index):
-        if np.dot(location - starts[ray], directions[ray]) <= opening:
-            contacts[ray] = location
-    return contacts, float(np.linalg.norm(contacts[1] - contacts[0]))
+def pad_sweep_cloud(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Surface points of `mesh` for the pads' sweep: its vertices and an area-weighted sample about
+    `CLOUD_SPACING` apart (seeded, so a plan is repeatable)."""
+    count = int(np.clip(mesh.area / CLOUD_SPACING**2, *CLOUD_POINTS))
+    points, _ = trimesh.sample.sample_surface(mesh, count, seed=CLOUD_SEED)
+    return np.concatenate([np.asarray(mesh.vertices, dtype=np.float64), points])

@@ -89,7 +89,8 @@ class VoteStore(Protocol):
 
 class Slot(NamedTuple):
     """One trial slot: the `rank`-th grasp a method chose for prompt `prompt_index` (world frame; None when the
-    method had fewer grasps on the part than slots) among `n_candidates`."""
+    method had fewer grasps on the part than slots) among `n_candidates`. `planned`: the grasp's contacts were
+    planned (NaN ones touch nothing); False for a grasp given from outside, which has none to score."""
 
     method: str
     detector: str
@@ -97,6 +98,7 @@ class Slot(NamedTuple):
     rank: int
     grasp: GraspSet | None
     n_candidates: int
+    planned: bool = True
 
 
 @dataclass
@@ -357,11 +359,7 @@ class Episode:
         record.width = width
         record.T_world_grasp = np.round(T_world_grasp, 6).tolist()
         record.quaternion_xyzw = Rotation.from_matrix(T_world_grasp[:3, :3]).as_quat().tolist()
-        contacts = slot.grasp.contacts[0]
-        if self.truth is not None and np.isfinite(contacts).all():
-            o = self.observation
-            record.contacts_on_part = self.truth.contacts_on_part(contacts, o.T_world_obj, o.perceived,
-                                                                  slot.prompt_index)
+        record.contacts_on_part = self.contacts_on_part(slot)
         outcome = self._outcome(T_world_grasp, width, reset, record)
         record.executed = True
         record.reachable = bool(outcome.reachable)
@@ -376,6 +374,17 @@ class Episode:
             record.success = bool(outcome.lifted and on_part)
         record.failure = failure_of(outcome, record.success, on_part)
         return record
+
+    def contacts_on_part(self, slot: Slot) -> bool | None:
+        """Part Sel. of a slot from its planned contacts, without executing it: False for a slot without a grasp
+        or whose grasp's pads touch nothing (non-finite contacts); None without ground truth or for a grasp given
+        from outside (no planned contacts)."""
+        if self.truth is None or not slot.planned:
+            return None
+        if slot.grasp is None:
+            return False
+        o = self.observation
+        return self.truth.contacts_on_part(slot.grasp.contacts[0], o.T_world_obj, o.perceived, slot.prompt_index)
 
     def _outcome(self, T_world_grasp: np.ndarray, width: float, reset: bool, record: TrialRecord) -> GraspOutcome:
         key = grasp_key(T_world_grasp, width)
@@ -393,4 +402,4 @@ class Episode:
 def action_slot(prompt_index: int, T_world_grasp: np.ndarray, width: float, method: str = "action") -> Slot:
     """A slot for a grasp given from outside (the gym env's action): no planned contacts, no score."""
     grasp = GraspSet(np.asarray(T_world_grasp, dtype=np.float64)[None], [width], [np.nan], np.full((1, 2, 3), np.nan))
-    return Slot(method, "policy", prompt_index, 0, grasp, 1)
+    return Slot(method, "policy", prompt_index, 0, grasp, 1, planned=False)

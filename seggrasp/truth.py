@@ -91,9 +91,13 @@ class GroundTruth:
         return transfer_labels(self.mesh, self.labels, mesh, self._T_truth_world(T_world_obj, perceived))
 
     def contacts_on_part(self, contacts_world: np.ndarray, T_world_obj: np.ndarray, perceived: bool, k: int) -> bool:
-        """Whether both planned finger contacts (world frame, (2, 3)) lie nearest to faces of prompt `k`."""
+        """Whether both planned finger contacts (world frame, (2, 3)) lie nearest to faces of prompt `k`. A
+        non-finite contact is a pad that touches nothing: such a grasp is not on the part."""
+        contacts = np.asarray(contacts_world, dtype=np.float64).reshape(2, 3)
+        if not np.isfinite(contacts).all():
+            return False
         T = self._T_truth_world(T_world_obj, perceived)
-        contacts = np.asarray(contacts_world, dtype=np.float64).reshape(2, 3) @ T[:3, :3].T + T[:3, 3]
+        contacts = contacts @ T[:3, :3].T + T[:3, 3]
         _, _, nearest = trimesh.proximity.closest_point(self.mesh, contacts)
         return bool((self.labels[np.asarray(nearest, dtype=np.int64)] == k).all())
 

@@ -55,3 +55,34 @@ def test_bad_run_folder_is_a_clear_error(tmp_path, capsys) -> None:
     assert bench_selection.main(["--runs", f"typical={tmp_path}", "--out", str(tmp_path / "x.md")]) == 2
     assert "not a sim.evaluate output folder" in capsys.readouterr().err
     assert bench_selection.main(["--runs", "typical", "--out", str(tmp_path / "x.md")]) == 2
+
+
+def test_seeds_option_keeps_only_those_seeds(tmp_path) -> None:
+    write_run(tmp_path / "s01", [0, 1], [("mug", "handle")])
+    out = tmp_path / "selection.md"
+    assert bench_selection.main(["--runs", f"typical={tmp_path / 's01'}", "--seeds", "1", "--out", str(out)]) == 0
+    assert "## Detector `typical`: seeds 1\n" in out.read_text()
+
+
+def test_category_rows_compare_the_slots_both_record_per_category() -> None:
+    def trial(object_id, category, rank, on_part, success=None):
+        return {"method": "shapegrasp", "object_id": object_id, "category": category, "prompt": "p", "rank": rank,
+                "seed": 0, "contacts_on_part": on_part, "success": success}
+
+    before = [trial("knife_a", "knife", 0, True, False), trial("knife_a", "knife", 1, True, True),
+              trial("mug_a", "mug", 0, True, False), trial("mug_b", "mug", 0, False, False)]
+    after = [trial("knife_a", "knife", 0, False, True), trial("knife_a", "knife", 1, None, True),
+             trial("mug_a", "mug", 0, True, False)]  # mug_b was not planned again: left out of both columns
+    rows = bench_selection.category_rows(before, after, "shapegrasp", [("contacts_on_part", "before"),
+                                                                       ("contacts_on_part", "after"),
+                                                                       ("success", "after")])
+    assert rows == ["| shapegrasp | knife | 2 | 1.000 | 0.000 | 1.000 |",
+                    "| shapegrasp | mug | 1 | 1.000 | 1.000 | 0.000 |",
+                    "| shapegrasp | all | 3 | 1.000 | 0.333 | 0.667 |"]
+
+
+def test_replan_rejects_an_unknown_method(tmp_path, capsys) -> None:
+    write_run(tmp_path / "s0", [0], [("mug", "handle")])
+    assert bench_selection.main(["--runs", f"typical={tmp_path / 's0'}", "--replan", "typical", "--methods", "magic",
+                                 "--out", str(tmp_path / "x.md")]) == 2
+    assert "unknown method 'magic'" in capsys.readouterr().err

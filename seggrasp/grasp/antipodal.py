@@ -326,6 +326,26 @@ def _sweep(
     return span, x_low, x_high, low, high
 
 
+def pad_contacts(
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
+    half_width: float = AntipodalConfig.pad_half_width, half_length: float = AntipodalConfig.pad_half_length,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the two pads (2 half_width x 2 half_length, centred on the gripper's x axis), closing from `openings`
+    at `poses`, first touch the surface points `cloud` (the sampler's pad sweep, `_sweep`): contacts (G, 2, 3),
+    -x pad first, and widths (G,); both NaN for a pose whose pads sweep no point (the grasp touches nothing)."""
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    openings = np.broadcast_to(np.asarray(openings, dtype=np.float64), (len(poses),))
+    span, _, _, low, high = _sweep(poses, openings, cloud, half_width, -half_length, half_length)
+    contacts = np.stack([cloud[low], cloud[high]], axis=1)
+    # `_sweep` marks an empty sweep only by a zero span: a swept point lies inside, in the pose's frame
+    local = np.einsum("gji,gj->gi", poses[:, :3, :3], cloud[low] - poses[:, :3, 3])
+    tolerance = 1e-9
+    swept = (np.abs(local[:, 0]) <= 0.5 * openings + tolerance) & (np.abs(local[:, 1]) <= half_width + tolerance) & (
+        np.abs(local[:, 2]) <= half_length + tolerance)
+    contacts[~swept] = np.nan
+    return contacts, np.where(swept, span, np.nan)
+
+
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
     if table_plane is None:
         return None
