@@ -19,12 +19,13 @@ import numpy as np
 from hardware.calibration import load_extrinsics
 from hardware.fields import ConfigError, FieldReader, read_yaml
 from hardware.kinematics import ARM_MODELS
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 
 #: Arm models whose nominal kinematics (hardware/kinematics.py) the joint-path safety check knows.
 UR_MODELS = tuple(ARM_MODELS)
-#: The 2F-85's finger speed (m/s) and grip force (N) ranges (datasheet): registers 0-255 span them linearly.
+#: The 2F-85's finger speed range (m/s, datasheet); its grip force range (N, `GRIP_FORCE_RANGE`) and the default
+#: force are the ones the twin uses (`seggrasp.cell`). Registers 0-255 span each range linearly.
 FINGER_SPEED_RANGE = (0.020, 0.150)
-GRIP_FORCE_RANGE = (20.0, 235.0)
 _HOST = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?")
 
 
@@ -200,7 +201,7 @@ def _parse_gripper(r: FieldReader, data: dict, robot_ip: str) -> GripperConfig:
         closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
         timeout=r.number(section, "timeout", p, 5.0, positive=True),
         speed=r.number(section, "speed", p, 0.05, low=FINGER_SPEED_RANGE[0], high=FINGER_SPEED_RANGE[1]),
-        force=r.number(section, "force", p, 100.0, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
+        force=r.number(section, "force", p, DEFAULT_GRIP_FORCE, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
         tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
         closing_shift=r.number(section, "closing_shift", p, 0.0),
     )
@@ -264,7 +265,7 @@ def _parse_limits(r: FieldReader, data: dict) -> Limits:
         max_tool_acceleration=r.number(section, "max_tool_acceleration", p, 1.2, positive=True),
         max_joint_speed=r.number(section, "max_joint_speed", p, 1.05, positive=True),
         max_joint_acceleration=r.number(section, "max_joint_acceleration", p, 1.4, positive=True),
-        max_grip_force=r.number(section, "max_grip_force", p, 100.0, positive=True),
+        max_grip_force=r.number(section, "max_grip_force", p, DEFAULT_GRIP_FORCE, positive=True),
     )
     if limits.max_tool_speed > 1.0:
         raise r.error("limits.max_tool_speed", f"{limits.max_tool_speed} m/s is above the 1 m/s the bridge allows")

@@ -26,9 +26,10 @@ class Frame:
 
 
 #: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting, shared by the twin
-#: (`sim.gripper.GripperSettings`), the grasp sampler's torque limit and the real cell (hardware/cell.example.yaml
-#: `gripper.force`, at the example's `limits.max_grip_force`). At 40 N mug, knife and hammer handles turn in the
-#: fingers under their own weight.
+#: (`sim.gripper.GripperSettings`; a twin run sets another with `python -m sim.evaluate --grip-force N`), the grasp
+#: sampler's torque limit and the real cell (hardware/cell.example.yaml `gripper.force`, at the example's
+#: `limits.max_grip_force`; hardware/config.py's default). At 40 N mug, knife and hammer handles turn in the fingers
+#: under their own weight; why the default stays at 100 N: docs/results/twin-physics.md, fourth round.
 GRIP_FORCE_RANGE = (20.0, 235.0)
 DEFAULT_GRIP_FORCE = 100.0
 

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 from typing import Sequence
 
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from seggrasp.grasp.select import TOP_K
 from seggrasp.method import METHODS
 from sim.evaluate.config import (
@@ -61,6 +62,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--record", type=int, default=0, metavar="N",
                         help="twin only: save a picture strip (pre-grasp, closed, lifted, held) of the first N executed "
                         "slots per method and object to OUT/strips/")
+    parser.add_argument("--grip-force", type=float, default=None, metavar="N",
+                        help=f"twin only: the gripper's force in N, {GRIP_FORCE_RANGE[0]:g}-{GRIP_FORCE_RANGE[1]:g} like the "
+                        f"2F-85 (default {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
+                        "sampler's torsion limit follows it. A real cell grips with its cell.yaml's gripper.force")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     args.embodiment_given = any(a == "--embodiment" or a.startswith("--embodiment=") for a in (argv or sys.argv[1:]))
@@ -117,6 +122,17 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
         raise ValueError("--address joins a Ray cluster: it needs --engine ray")
     if args.engine == "ray" and args.backend == "real":
         raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
+    _check_grip_force(args)
+
+
+def _check_grip_force(args: argparse.Namespace) -> None:
+    if args.grip_force is None:
+        return
+    if args.backend == "real":
+        raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
+    low, high = GRIP_FORCE_RANGE
+    if not low <= args.grip_force <= high:  # also rejects nan
+        raise ValueError(f"--grip-force {args.grip_force:g} N is outside the 2F-85's range {low:g}-{high:g} N")
 
 
 def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]) -> None:
@@ -149,6 +165,7 @@ def build_config(args: argparse.Namespace) -> RunConfig:
         seeds=_seeds(args), top_k=top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
         prompts=prompts, record=args.record,
+        grip_force=DEFAULT_GRIP_FORCE if args.grip_force is None else args.grip_force,
     )
 
 

@@ -190,10 +190,10 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
 
 
 def _upgraded(previous: dict) -> dict:
-    """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it)."""
+    """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it) or a grip force (100 N)."""
     if "seeds" not in previous and "seed" in previous:
         previous = dict(previous, seeds=[previous["seed"]], decomposition_seed=previous["seed"])
-    return previous
+    return dict({"grip_force": 100.0}, **previous)
 
 
 class VoteCache:

@@ -17,6 +17,7 @@ import numpy as np
 
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, TrialRecord, grasp_key
+from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
 from seggrasp.objects import ObjectModel
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
@@ -99,10 +100,12 @@ def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
         return _CELL
     if _CELL is None or model.object_id not in _CELL_OBJECTS:
         from sim.cell import SimCell
+        from sim.gripper import GripperSettings
 
         objects = dict(_CELL_OBJECTS, **{model.object_id: model})
         close_cell()
-        _CELL = SimCell(objects=list(objects.values()), embodiment=config.embodiment, seed=config.seed)
+        _CELL = SimCell(objects=list(objects.values()), embodiment=config.embodiment, seed=config.seed,
+                        gripper=GripperSettings(grip_force=config.grip_force))
         _CELL_OBJECTS.update(objects)
     return _CELL
 
@@ -191,6 +194,7 @@ def run_object(
     )
     episode = Episode(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
+        generator=AntipodalSampler(AntipodalConfig(grip_force=config.grip_force)),
         vote_cache=VoteCache(out / "cache" / context.object_id),
         outcome_cache=_reusable_outcomes(recorded.trials, config),
     )
