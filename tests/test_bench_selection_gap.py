@@ -36,7 +36,7 @@ def write_object(cache: Path, swapped: bool) -> None:
 def test_right_votes_select_on_part_and_lose_nothing(tmp_path) -> None:
     write_object(tmp_path, swapped=False)
     objects = gap.load_objects(tmp_path)
-    ours, oracle = gap.score(objects, gap.shipped), gap.score(objects, gap.oracle)
+    ours, oracle = gap.score(objects, gap.baseline), gap.score(objects, gap.oracle)
     assert ours == oracle == {(0, "two_boxes", "left"): (0.3, 3), (0, "two_boxes", "right"): (0.3, 3)}
     lost_by, _ = gap.diagnose(objects)
     assert sum(lost_by.values()) == 0
@@ -45,7 +45,7 @@ def test_right_votes_select_on_part_and_lose_nothing(tmp_path) -> None:
 def test_swapped_votes_lose_every_slot_to_labels_that_miss_the_part(tmp_path) -> None:
     write_object(tmp_path, swapped=True)
     objects = gap.load_objects(tmp_path)
-    assert all(v == (0.0, 3) for v in gap.score(objects, gap.shipped).values())
+    assert all(v == (0.0, 3) for v in gap.score(objects, gap.baseline).values())
     lost_by, per_request = gap.diagnose(objects)
     assert {key: n for key, n in lost_by.items() if n} == {("grasp with no pad on the part", "A"): 6.0}
     assert per_request[("two_boxes", "left")][:2] == [3, 3]
