@@ -506,6 +506,8 @@ def report(run: Path, objects: list[dict], hard: list[dict], tune: set[int], com
     if hard:
         hard_seeds = sorted({o["seed"] for o in hard})
         lines += [f"## Selection variants, detector `hard` (held out; seeds {', '.join(map(str, hard_seeds))})", "",
+                  "The run's scenes and grasp candidates with the `hard` preset's coarse votes (computed by",
+                  "`--collect-hard`); no physics. The oracle is the same as above.", "",
                   *table_head, *variant_table(hard, set()), ""]
     return lines + FOOTER
 
@@ -538,7 +540,7 @@ FOOTER = [
     "  next to its handle, a bottle's neck under its cap, a kettle's lid on its body), and the generator's order",
     "  prefers those. A narrower region (0.8 x the best p_on) keeps fewer of them. It was the best variant on the",
     "  tuning seeds and the one chosen there; it held on the held-out `typical` seeds, but on the `hard` preset its",
-    "  difference is within noise (and on `hard` seeds 2-4, looked at only after the choice, below the run's), so",
+    "  difference is within noise (on `hard` seeds 2-4, the last looked at, it is below the run's), so",
     "  it was not adopted: PartPolicy keeps region 0.65.",
     "- Also not adopted: the part-per-prompt prior (ungated, gated as issue 15 gates soft anchoring, or on two",
     "  levels), the least probable face under the pad (core over border), a wider footprint, the depth inside the",
