@@ -43,7 +43,9 @@ class PhysicsSettings:
     and PyBullet's default contact ERP the pads sink millimetres into what they hold. 100 iterations with a contact
     ERP of 0.8 (penetration corrected within a few steps) keep them on the surface at the default grip force
     (`tests/test_sim_gripper.py`; `bench/bench_sim.py --compare-legacy` times both). `contact_erp=None` keeps
-    PyBullet's default (`LEGACY_PHYSICS`, the settings before this change).
+    PyBullet's default (`LEGACY_PHYSICS`, the settings before this change). Squeezing at the grip force, though,
+    100 iterations let the pads splay apart at the fingertips, so the grasp primitive switches to
+    `converged_iterations` once they tilt beyond `pad_tilt_tolerance_deg` (`sim.cell.GraspPrimitive`).
     """
 
     time_step: float = 1.0 / 240.0
@@ -54,8 +56,8 @@ class PhysicsSettings:
     light_object_mass: float = 0.05
     light_object_iterations: int | None = 300
     # the pads of a converged 2F-85 stay parallel; when a squeeze tilts them further apart than this (deg) the
-    # grasp primitive raises the solver iterations to `converged_iterations` for the rest of the trial
-    # (sim.cell.GraspPrimitive): at 100 iterations a 6 mm shaft squeezed near the fingertips tilts them 3.4 deg
+    # grasp primitive solves the rest of the trial with `converged_iterations` (between splayed pads a thin round
+    # part is squeezed towards the fingertips and rolls; docs/results/twin-physics-round4-roll.md)
     pad_tilt_tolerance_deg: float | None = 0.5
     converged_iterations: int = 1000
     gravity: float = -9.81
