@@ -43,7 +43,9 @@ class PhysicsSettings:
     and PyBullet's default contact ERP the pads sink millimetres into what they hold. 100 iterations with a contact
     ERP of 0.8 (penetration corrected within a few steps) keep them on the surface at the default grip force
     (`tests/test_sim_gripper.py`; `bench/bench_sim.py --compare-legacy` times both). `contact_erp=None` keeps
-    PyBullet's default (`LEGACY_PHYSICS`, the settings before this change).
+    PyBullet's default (`LEGACY_PHYSICS`, the settings before this change). Squeezing at the grip force, though,
+    100 iterations let the pads splay apart at the fingertips, so the grasp primitive switches to
+    `converged_iterations` once they tilt beyond `pad_tilt_tolerance_deg` (`sim.cell.GraspPrimitive`).
     """
 
     time_step: float = 1.0 / 240.0
@@ -53,11 +55,18 @@ class PhysicsSettings:
     # fingers at 100 iterations (a 20 g toothbrush falls during the lift) and needs `light_object_iterations`
     light_object_mass: float = 0.05
     light_object_iterations: int | None = 300
+    # the pads of a converged 2F-85 stay parallel; when a squeeze tilts them further apart than this (deg) the
+    # grasp primitive solves the rest of the trial with `converged_iterations` (between splayed pads a thin round
+    # part is squeezed towards the fingertips and rolls; docs/results/twin-physics-round4-roll.md)
+    pad_tilt_tolerance_deg: float | None = 0.5
+    converged_iterations: int = 1000
     gravity: float = -9.81
 
 
 #: The solver settings the twin used before the gripper converged (for side-by-side benchmarks).
-LEGACY_PHYSICS = PhysicsSettings(solver_iterations=50, contact_erp=None, light_object_iterations=None)
+LEGACY_PHYSICS = PhysicsSettings(
+    solver_iterations=50, contact_erp=None, light_object_iterations=None, pad_tilt_tolerance_deg=None
+)
 
 
 def pose_to_pb(T: np.ndarray) -> tuple[list[float], list[float]]:
@@ -175,9 +184,17 @@ class World:
             body, -1, lateralFriction=float(model.friction), spinningFriction=0.001, rollingFriction=0.0001,
         )
         light = self.physics.light_object_iterations is not None and model.mass < self.physics.light_object_mass
-        iterations = self.physics.light_object_iterations if light else self.physics.solver_iterations
-        self.client.setPhysicsEngineParameter(numSolverIterations=int(iterations))
+        self.set_solver_iterations(self.physics.light_object_iterations if light else self.physics.solver_iterations)
         return body
+
+    @property
+    def solver_iterations(self) -> int:
+        """The solver iterations per step in force now."""
+        return int(self.client.getPhysicsEngineParameters()["numSolverIterations"])
+
+    def set_solver_iterations(self, iterations: int) -> None:
+        """Solve every following step with `iterations` solver iterations (until `reset` or the next object)."""
+        self.client.setPhysicsEngineParameter(numSolverIterations=int(iterations))
 
     def body_pose(self, body: int) -> np.ndarray:
         """`T_world_link` of a body's base link frame (the URDF frame, not PyBullet's centre-of-mass frame)."""
