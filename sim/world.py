@@ -44,8 +44,10 @@ class PhysicsSettings:
     ERP of 0.8 (penetration corrected within a few steps) keep them on the surface at the default grip force
     (`tests/test_sim_gripper.py`; `bench/bench_sim.py --compare-legacy` times both). `contact_erp=None` keeps
     PyBullet's default (`LEGACY_PHYSICS`, the settings before this change). Squeezing at the grip force, though,
-    100 iterations let the pads splay apart at the fingertips, so the grasp primitive switches to
-    `converged_iterations` once they tilt beyond `pad_tilt_tolerance_deg` (`sim.cell.GraspPrimitive`).
+    100 iterations let the pads splay apart at the fingertips (3.5-5 deg) and cap the squeeze near 100 N; with
+    `pad_tilt_tolerance_deg` set (`CONVERGED_FINGERS`, `python -m sim.evaluate --converged-fingers`) the grasp
+    primitive switches to `converged_iterations` once they tilt beyond it (`sim.cell.GraspPrimitive`), at about
+    4.5x the physics time of a trial, so it is not the default.
     """
 
     time_step: float = 1.0 / 240.0
@@ -58,15 +60,15 @@ class PhysicsSettings:
     # the pads of a converged 2F-85 stay parallel; when a squeeze tilts them further apart than this (deg) the
     # grasp primitive solves the rest of the trial with `converged_iterations` (between splayed pads a thin round
     # part is squeezed towards the fingertips and rolls; docs/results/twin-physics-round4-roll.md)
-    pad_tilt_tolerance_deg: float | None = 0.5
+    pad_tilt_tolerance_deg: float | None = None
     converged_iterations: int = 1000
     gravity: float = -9.81
 
 
 #: The solver settings the twin used before the gripper converged (for side-by-side benchmarks).
-LEGACY_PHYSICS = PhysicsSettings(
-    solver_iterations=50, contact_erp=None, light_object_iterations=None, pad_tilt_tolerance_deg=None
-)
+LEGACY_PHYSICS = PhysicsSettings(solver_iterations=50, contact_erp=None, light_object_iterations=None)
+#: The default settings plus the switch to `converged_iterations` once the squeeze splays the pads beyond 0.5 deg.
+CONVERGED_FINGERS = PhysicsSettings(pad_tilt_tolerance_deg=0.5)
 
 
 def pose_to_pb(T: np.ndarray) -> tuple[list[float], list[float]]:

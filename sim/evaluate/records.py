@@ -190,10 +190,11 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
 
 
 def _upgraded(previous: dict) -> dict:
-    """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it) or a grip force (100 N)."""
+    """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it), a grip force (100 N) or
+    the converged-fingers option (off)."""
     if "seeds" not in previous and "seed" in previous:
         previous = dict(previous, seeds=[previous["seed"]], decomposition_seed=previous["seed"])
-    return dict({"grip_force": 100.0}, **previous)
+    return dict({"grip_force": 100.0, "converged_fingers": False}, **previous)
 
 
 class VoteCache:
