@@ -375,10 +375,12 @@ class GraspPrimitive:
         has tilted the pads apart beyond `pad_tilt_tolerance_deg`: the finger linkage has not converged, and
         tilted pads squeeze a thin part towards the fingertips and roll it. True if raised."""
         physics = self.world.physics
-        if (physics.pad_tilt_tolerance_deg is None or self.world.solver_iterations >= physics.converged_iterations
-                or self._pad_tilt() <= np.deg2rad(physics.pad_tilt_tolerance_deg)):
+        if physics.pad_tilt_tolerance_deg is None or self.world.solver_iterations >= physics.converged_iterations:
             return False
-        log.debug("pads tilted %.2f deg: %d solver iterations", np.rad2deg(self._pad_tilt()), physics.converged_iterations)
+        tilt = self._pad_tilt()
+        if tilt <= np.deg2rad(physics.pad_tilt_tolerance_deg):
+            return False
+        log.debug("pads tilted %.2f deg: %d solver iterations", np.rad2deg(tilt), physics.converged_iterations)
         self.world.set_solver_iterations(physics.converged_iterations)
         return True
 

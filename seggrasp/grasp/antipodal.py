@@ -310,7 +310,7 @@ def _sweep(
     poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The cloud points the closing pads sweep (|y| <= half_width, z_low <= z <= z_high, |x| within half the
-    opening, gripper frame) per pose: (span along x, 0 if none; lowest and highest x; their cloud indices)."""
+    opening, gripper frame) per pose: (span along x, NaN if none; lowest and highest x; their cloud indices)."""
     rotations = poses[:, :3, :3]
     local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
     inside = (
@@ -322,7 +322,7 @@ def _sweep(
     high = np.where(inside, x, -np.inf).argmax(axis=1)
     rows = np.arange(len(local))
     x_low, x_high = x[rows, low], x[rows, high]
-    span = np.where(inside.any(axis=1), x_high - x_low, 0.0)
+    span = np.where(inside.any(axis=1), x_high - x_low, np.nan)
     return span, x_low, x_high, low, high
 
 
@@ -337,13 +337,8 @@ def pad_contacts(
     openings = np.broadcast_to(np.asarray(openings, dtype=np.float64), (len(poses),))
     span, _, _, low, high = _sweep(poses, openings, cloud, half_width, -half_length, half_length)
     contacts = np.stack([cloud[low], cloud[high]], axis=1)
-    # `_sweep` marks an empty sweep only by a zero span: a swept point lies inside, in the pose's frame
-    local = np.einsum("gji,gj->gi", poses[:, :3, :3], cloud[low] - poses[:, :3, 3])
-    tolerance = 1e-9
-    swept = (np.abs(local[:, 0]) <= 0.5 * openings + tolerance) & (np.abs(local[:, 1]) <= half_width + tolerance) & (
-        np.abs(local[:, 2]) <= half_length + tolerance)
-    contacts[~swept] = np.nan
-    return contacts, np.where(swept, span, np.nan)
+    contacts[np.isnan(span)] = np.nan
+    return contacts, span
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
