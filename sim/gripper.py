@@ -1,16 +1,19 @@
-"""The Robotiq 2F-85: its six-bar linkage as one actuated joint plus gear constraints, and a floating gripper.
+"""The Robotiq 2F-85 as simulated: the linkage's parallel pads on force-limited slides, and a floating gripper.
 
-The description (assets/robots/) has the linkage opened into a tree: `finger_joint` (left outer knuckle) is the
-actuated joint; the right outer knuckle and both inner knuckles turn with it (multiplier +1) and both inner
-fingers counter-rotate (multiplier -1), which keeps the pads parallel. Before every physics step each follower is
-servoed (stiff position control) to its multiple of the current `finger_joint` angle, so the fingers stay symmetric
-under load: measured < 1 mm while holding a box, where PyBullet gear constraints (erp 0.2-1, maxForce up to 1e4)
-let the loaded finger lag by 9-12 mm. Closing is velocity control with a torque limit on `finger_joint` (the grip
-force), stopped when the finger stalls; the followers only copy its angle.
+The 2F-85 is a parallel-pad gripper: its six-bar linkage moves each inner finger (with its pad) along an arc of
+the outer knuckle's pivot without turning it. The description (assets/robots/) has that linkage opened into a tree
+of revolute joints, which PyBullet's iterative solver does not converge under a squeeze: at 100 iterations the
+pads splayed 3.5-5 deg apart, a thin shaft rolled between them and the grip force never exceeded ~100 N
+(docs/results/twin-physics-round4-roll.md). `simulated_urdf` therefore re-hangs each inner finger from the gripper
+body on two prismatic joints traced from the linkage's own kinematics: a closing slide (actuated, velocity control
+with the grip force as its force limit, as the 2F-85's motor squeezes) and a lift (servoed to the arc's height for
+the slide's travel). The pads keep the 2F-85's geometry and arc, stay parallel by construction, and the squeeze
+passes one joint to the gripper body. The knuckles and outer fingers stay as servoed followers of the arc's angle:
+they are seen by the cameras and collide, but carry no squeeze.
 
 Gripper frame (DESIGN.md): z = approach, x = closing direction, origin between the pad centres. The pad centres'
-height above the gripper base depends on the opening (the fingers swing on an arc), so `T_base_tcp(width)` gives
-the frame for the width at which the pads will meet the object.
+height above the gripper base depends on the opening (the arc), so `T_base_tcp(width)` gives the frame for the
+width at which the pads will meet the object.
 """
 
 from __future__ import annotations
@@ -18,34 +21,46 @@ from __future__ import annotations
 import atexit
 import shutil
 import tempfile
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 import pybullet
+from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from sim.world import PATH_RESOLUTION, ROBOT_ASSETS, World, linear_poses, pose_to_pb
 
-FINGER_JOINT = "finger_joint"
+#: The body the fingers hang from, and each side's linkage: (outer knuckle joint, inner knuckle joint, inner
+#: finger joint of the description; the simulated closing slide and lift that replace the inner finger joint).
+GRIPPER_BODY_LINK = "robotiq_body"
+SIDES = (
+    ("finger_joint", "left_inner_knuckle_joint", "left_inner_finger_joint", "left_finger_slide", "left_finger_lift"),
+    ("right_outer_knuckle_joint", "right_inner_knuckle_joint", "right_inner_finger_joint", "right_finger_slide",
+     "right_finger_lift"),
+)
+#: The gripper alone (the floating gripper's description); the arm's carries the same gripper.
+GRIPPER_DESCRIPTION = "robotiq_2f85.urdf"
 #: The gripper description's root link (the floating gripper's gantry carries it).
 GANTRY_TOOL_LINK = "robotiq_base_link"
-#: Followers of `finger_joint` and their multipliers (the 2F-85's mimic joints).
-MIMIC_JOINTS = {
-    "right_outer_knuckle_joint": 1.0,
-    "left_inner_knuckle_joint": 1.0,
-    "right_inner_knuckle_joint": 1.0,
-    "left_inner_finger_joint": -1.0,
-    "right_inner_finger_joint": -1.0,
-}
 PAD_LINKS = ("left_inner_finger_pad", "right_inner_finger_pad")
 #: The rigid fingertip of each side: the inner finger and the pad mounted on it (both touch what is grasped).
 FINGERTIP_LINKS = (("left_inner_finger", "left_inner_finger_pad"), ("right_inner_finger", "right_inner_finger_pad"))
 PAD_THICKNESS = 0.00635
-FINGER_JOINT_MAX = 0.8
+#: The outer knuckle's travel (rad) from open to shut.
+KNUCKLE_MAX = 0.8
 #: Datasheet: 85 mm stroke.
 MAX_WIDTH = 0.085
+#: Mass (kg) of each slide's carriage: the finger drive's effective mass. The 2F-85's motor drives the fingers
+#: through a self-locking gear, so a contact impulse meets the rotor's inertia times the squared gear ratio, not a
+#: 15 g fingertip; with the fingertip alone on the slide the solver (100 iterations) delivered only about 130 N of a
+#: 235 N setting. Its weight is cancelled every step (`Robotiq2F85._carry_drives`): it is inertia, not load.
+CARRIAGE_MASS = 2.0
+#: Force limit (N) of the constraint that makes both slides travel together.
+COUPLING_FORCE = 10000.0
+COUPLING_ERP = 0.5
 #: Fingertip friction (silicone-like pads).
 PAD_FRICTION = 1.0
 #: Torsional friction of the pad's rubber patch, as PyBullet's `spinningFriction` (a length: the torque limit about
@@ -57,38 +72,156 @@ PAD_SPINNING_FRICTION = 0.0055
 PAD_ROLLING_FRICTION = 0.0001
 
 
-#: `finger_joint` torque (N m) per newton of grip force: the linkage's lever from the motor to the pad centres
-#: (about 8 cm over the stroke; tests/test_sim_gripper.py checks the resulting squeeze).
-TORQUE_PER_NEWTON = 0.08
-
-
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) becomes the torque limit of the
-    velocity-controlled `finger_joint`; closing speed (rad/s), the followers' servo force and stall detection."""
+    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) is the force limit of each
+    velocity-controlled closing slide; closing speed (m/s per pad: the datasheet's 20-150 mm/s), stall detection,
+    and the servo forces of the lifts and the knuckle followers."""
 
     grip_force: float = DEFAULT_GRIP_FORCE
-    closing_speed: float = 1.5
-    stall_travel: float = 0.004  # rad over `stall_steps` steps: the finger has stalled
+    closing_speed: float = 0.075
+    stall_travel: float = 0.0002  # m a slide moves at most over `stall_steps` steps once it has stalled
     stall_steps: int = 8
+    lift_force: float = 500.0
     follower_force: float = 50.0
-    follower_gain: float = 1.0
 
     def __post_init__(self) -> None:
         low, high = GRIP_FORCE_RANGE
         if not low <= self.grip_force <= high:
             raise ValueError(f"grip_force must be within the 2F-85's {low:g}-{high:g} N, got {self.grip_force}")
 
-    @property
-    def closing_torque(self) -> float:
-        """Torque limit (N m) of `finger_joint` that squeezes with `grip_force`."""
-        return self.grip_force * TORQUE_PER_NEWTON
+
+# --- the simulated description ------------------------------------------------------------------------------------
+
+def _origin(joint: ET.Element) -> np.ndarray:
+    """A URDF joint's origin as a 4x4 pose (rpy: fixed-axis roll, pitch, yaw)."""
+    element = joint.find("origin")
+    xyz = [float(v) for v in element.get("xyz", "0 0 0").split()] if element is not None else [0.0] * 3
+    rpy = [float(v) for v in element.get("rpy", "0 0 0").split()] if element is not None else [0.0] * 3
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    T[:3, 3] = xyz
+    return T
+
+
+def _rotation_about(joint: ET.Element, angle: float) -> np.ndarray:
+    T = np.eye(4)
+    axis = np.array([float(v) for v in joint.find("axis").get("xyz").split()])
+    T[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
+    return T
+
+
+def finger_arc(robot: ET.Element, side: tuple[str, ...], angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The linkage's kinematics of one side: the inner finger's frame at knuckle angle 0 in the gripper body frame,
+    and its displacement (n x 3, that frame's axes) at each knuckle angle, the inner finger counter-rotating."""
+    joints = {j.get("name"): j for j in robot.iter("joint")}
+    by_child = {j.find("child").get("link"): j for j in robot.iter("joint")}
+    knuckle, inner_finger = joints[side[0]], joints[side[2]]
+    between = np.eye(4)  # outer knuckle -> inner finger joint's parent, through fixed joints
+    link = inner_finger.find("parent").get("link")
+    while link != knuckle.find("child").get("link"):
+        joint = by_child[link]
+        if joint.get("type") != "fixed":
+            raise ValueError(f"unexpected {joint.get('type')} joint {joint.get('name')!r} in the 2F-85 finger")
+        between = _origin(joint) @ between
+        link = joint.find("parent").get("link")
+    if knuckle.find("parent").get("link") != GRIPPER_BODY_LINK:
+        raise ValueError(f"{side[0]!r} does not hang from {GRIPPER_BODY_LINK!r}")
+
+    def pose(angle: float) -> np.ndarray:
+        return (_origin(knuckle) @ _rotation_about(knuckle, angle) @ between @ _origin(inner_finger)
+                @ _rotation_about(inner_finger, -angle))
+
+    T_body_finger0 = pose(0.0)
+    displacement = np.array([(np.linalg.inv(T_body_finger0) @ pose(a))[:3, 3] for a in angles])
+    return T_body_finger0, displacement
+
+
+def _inertial(mass: float, inertia: float = 1e-6) -> ET.Element:
+    """An <inertial> element: `mass` (kg) at the link frame with a diagonal `inertia` (kg m^2)."""
+    inertial = ET.Element("inertial")
+    ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
+    ET.SubElement(inertial, "mass", value=f"{mass:g}")
+    ET.SubElement(inertial, "inertia", ixx=f"{inertia:g}", ixy="0", ixz="0", iyy=f"{inertia:g}", iyz="0", izz=f"{inertia:g}")
+    return inertial
+
+
+ARC_ANGLES = np.linspace(0.0, KNUCKLE_MAX, 33)
+
+
+def slide_arc(robot: ET.Element, side: tuple[str, ...]) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """One side's arc as the slides trace it: (inner finger frame at knuckle angle 0 in the body frame, the closing
+    direction along that frame's y (+1/-1), slide travel and lift at each of `ARC_ANGLES`)."""
+    T_body_finger0, displacement = finger_arc(robot, side, ARC_ANGLES)
+    if np.abs(displacement[:, 0]).max() > 1e-6:
+        raise ValueError(f"the 2F-85 finger of {side[0]!r} does not move in its y-z plane")
+    return T_body_finger0, float(np.sign(displacement[-1, 1])), np.abs(displacement[:, 1]), displacement[:, 2]
+
+
+@lru_cache(maxsize=None)
+def description_arcs(urdf_name: str) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+    """(slide travel, lift) over `ARC_ANGLES` of each side of the 2F-85 in a description of assets/robots/."""
+    robot = ET.parse(ROBOT_ASSETS / urdf_name).getroot()
+    return tuple(slide_arc(robot, side)[2:] for side in SIDES)
+
+
+def slide_fingertips(robot: ET.Element) -> None:
+    """Re-hang each inner finger of a 2F-85 description (in place) from the gripper body on a closing slide and a
+    lift, both traced from `finger_arc`: slide travel = the arc's closing component, lift = its approach component."""
+    for side in SIDES:
+        joint = next(j for j in robot.iter("joint") if j.get("name") == side[2])
+        T_body_finger0, closing, travel, lift = slide_arc(robot, side)
+        carriage = side[3].replace("slide", "carriage")
+        robot.remove(joint)
+        link = ET.SubElement(robot, "link", name=carriage)
+        link.append(_inertial(CARRIAGE_MASS))
+        xyz = " ".join(f"{v:.9g}" for v in T_body_finger0[:3, 3])
+        rpy = " ".join(f"{v:.12g}" for v in Rotation.from_matrix(T_body_finger0[:3, :3]).as_euler("xyz"))
+        for name, parent, child, axis, origin, (low, high) in (
+            (side[3], GRIPPER_BODY_LINK, carriage, f"0 {closing:g} 0", (xyz, rpy), (0.0, travel.max())),
+            (side[4], carriage, joint.find("child").get("link"), "0 0 1", ("0 0 0", "0 0 0"),
+             (min(lift.min(), 0.0), lift.max())),
+        ):
+            slide = ET.SubElement(robot, "joint", name=name, type="prismatic")
+            ET.SubElement(slide, "parent", link=parent)
+            ET.SubElement(slide, "child", link=child)
+            ET.SubElement(slide, "origin", xyz=origin[0], rpy=origin[1])
+            ET.SubElement(slide, "axis", xyz=axis)
+            ET.SubElement(slide, "limit", lower=f"{low:.9g}", upper=f"{high:.9g}", effort="1000", velocity="1")
+
+
+def simulated_robot(urdf_name: str) -> ET.Element:
+    """A description from assets/robots/ as the twin simulates it: absolute mesh paths, the 2F-85's fingertips on
+    slides (`slide_fingertips`)."""
+    robot = ET.parse(ROBOT_ASSETS / urdf_name).getroot()
+    for mesh in robot.iter("mesh"):
+        mesh.set("filename", str(ROBOT_ASSETS / mesh.get("filename")))
+    slide_fingertips(robot)
+    return robot
+
+
+def write_urdf(robot: ET.Element, name: str) -> Path:
+    """Write a description to a temporary file removed when the process exits."""
+    directory = tempfile.mkdtemp(prefix="seggrasp-robot-")
+    atexit.register(shutil.rmtree, directory, ignore_errors=True)
+    path = Path(directory) / name
+    ET.ElementTree(robot).write(path, encoding="unicode", xml_declaration=True)
+    return path
+
+
+@lru_cache(maxsize=None)
+def simulated_urdf(urdf_name: str) -> Path:
+    """`simulated_robot` written once per process."""
+    return write_urdf(simulated_robot(urdf_name), urdf_name)
 
 
 class Robotiq2F85:
-    """Drives the 2F-85 joints of a body (the floating gripper or the arm with the gripper on its flange)."""
+    """Drives the 2F-85 joints of a body (the floating gripper or the arm with the gripper on its flange) loaded
+    from the `simulated_urdf` of `description`."""
 
-    def __init__(self, world: World, body: int, base_link: int, settings: GripperSettings | None = None) -> None:
+    def __init__(
+        self, world: World, body: int, base_link: int, description: str, settings: GripperSettings | None = None,
+    ) -> None:
         self.world = world
         self.body = body
         self.base_link = base_link
@@ -96,11 +229,18 @@ class Robotiq2F85:
         c = world.client
         names = {c.getJointInfo(body, j)[1].decode(): j for j in range(c.getNumJoints(body))}
         links = {c.getJointInfo(body, j)[12].decode(): j for j in range(c.getNumJoints(body))}
-        self.finger_joint = names[FINGER_JOINT]
-        self.mimic = {names[n]: m for n, m in MIMIC_JOINTS.items()}
+        self.slides = tuple(names[side[3]] for side in SIDES)
+        self.lifts = tuple(names[side[4]] for side in SIDES)
+        self.knuckles = tuple((names[side[0]], names[side[1]]) for side in SIDES)
+        self.arcs = description_arcs(description)
         self.pad_links = tuple(links[n] for n in PAD_LINKS)
         self.fingertip_links = tuple(tuple(links[n] for n in side) for side in FINGERTIP_LINKS)
-        world.pre_step_hooks.append(self._servo_followers)
+        self.carriages = tuple(links[side[3].replace("slide", "carriage")] for side in SIDES)
+        coupling = c.createConstraint(body, self.slides[0], body, self.slides[1], pybullet.JOINT_GEAR, [0, 0, 0],
+                                      [0, 0, 0], [0, 0, 0])
+        # one motor drives both fingers: the slides move together (PyBullet's gear: travel_left = travel_right)
+        c.changeConstraint(coupling, gearRatio=-1, maxForce=COUPLING_FORCE, erp=COUPLING_ERP)
+        world.pre_step_hooks += [self._servo_followers, self._carry_drives]
         for link in (link for side in self.fingertip_links for link in side):
             c.changeDynamics(
                 body, link, lateralFriction=PAD_FRICTION, spinningFriction=PAD_SPINNING_FRICTION,
@@ -108,82 +248,111 @@ class Robotiq2F85:
             )
         self._calibrate()
 
-    def _servo_followers(self) -> None:
-        """Mimic joints: before every physics step, drive each follower to its multiple of the finger angle."""
-        c = self.world.client
-        angle = c.getJointState(self.body, self.finger_joint)[0]
-        joints = list(self.mimic)
-        c.setJointMotorControlArray(
-            self.body, joints, pybullet.POSITION_CONTROL, targetPositions=[self.mimic[j] * angle for j in joints],
-            forces=[self.settings.follower_force] * len(joints), positionGains=[self.settings.follower_gain] * len(joints),
-        )
-
     # --- geometry -------------------------------------------------------------------------------------------
 
     def _calibrate(self) -> None:
-        """Tabulate pad gap and pad-centre height over the finger angle by forward kinematics."""
-        angles = np.linspace(0.0, FINGER_JOINT_MAX, 33)
+        """Tabulate pad gap and pad-centre height over the slide travel (the left side's arc) by forward kinematics
+        of the loaded body."""
+        self._arc_travel = self.arcs[0][0]
         saved = self.joint_positions()
         gaps, heights = [], []
         T_base_world = np.linalg.inv(self.world.link_pose(self.body, self.base_link))
-        for angle in angles:
-            self.set_angle(angle)
+        for travel in self._arc_travel:
+            self.set_travel(travel)
             left, right = (T_base_world @ self.world.link_pose(self.body, link) for link in self.pad_links)
             gaps.append(np.linalg.norm(left[:3, 3] - right[:3, 3]) - PAD_THICKNESS)
             heights.append(0.5 * (left[2, 3] + right[2, 3]))
         self._restore(saved)
-        self._angles = angles
-        self._gaps = np.asarray(gaps)  # decreasing with the angle
+        self._gaps = np.asarray(gaps)  # decreasing with the travel
         self._heights = np.asarray(heights)
 
-    def angle_for_width(self, width: float) -> float:
-        """Finger angle whose pad gap is `width` (clipped to the stroke)."""
+    def travel_for_width(self, width: float) -> float:
+        """Slide travel (m, each side) whose pad gap is `width` (clipped to the stroke)."""
         width = float(np.clip(width, self._gaps[-1], self._gaps[0]))
-        return float(np.interp(width, self._gaps[::-1], self._angles[::-1]))
+        return float(np.interp(width, self._gaps[::-1], self._arc_travel[::-1]))
 
-    def width_for_angle(self, angle: float) -> float:
-        return float(np.interp(angle, self._angles, self._gaps))
+    def width_for_travel(self, travel: float) -> float:
+        return float(np.interp(travel, self._arc_travel, self._gaps))
 
     @property
     def max_width(self) -> float:
         return float(self._gaps[0])
 
+    @property
+    def max_travel(self) -> float:
+        return float(self._arc_travel[-1])
+
     def T_base_tcp(self, width: float) -> np.ndarray:
         """Gripper base -> TCP (between the pad centres) when the gripper is opened to `width`."""
         T = np.eye(4)
-        T[2, 3] = float(np.interp(self.angle_for_width(width), self._angles, self._heights))
+        T[2, 3] = float(np.interp(self.travel_for_width(width), self._arc_travel, self._heights))
         return T
 
     # --- state ------------------------------------------------------------------------------------------------
 
+    def _joints(self) -> list[int]:
+        return [*self.slides, *self.lifts, *(j for pair in self.knuckles for j in pair)]
+
     def joint_positions(self) -> dict[int, float]:
         c = self.world.client
-        return {j: c.getJointState(self.body, j)[0] for j in (self.finger_joint, *self.mimic)}
+        return {j: c.getJointState(self.body, j)[0] for j in self._joints()}
 
     def _restore(self, positions: dict[int, float]) -> None:
         for joint, value in positions.items():
             self.world.client.resetJointState(self.body, joint, value)
 
-    def set_angle(self, angle: float) -> None:
-        """Place the linkage at a finger angle instantly (no physics); used at reset and for calibration."""
+    def _arc(self, side: int, travel: float) -> tuple[float, float]:
+        """(lift m, knuckle angle rad) of a side whose slide has travelled `travel`."""
+        travels, lifts = self.arcs[side]
+        return float(np.interp(travel, travels, lifts)), float(np.interp(travel, travels, ARC_ANGLES))
+
+    def _servo_followers(self) -> None:
+        """Before every physics step, drive each side's lift and knuckles to the arc of its slide's travel."""
         c = self.world.client
-        c.resetJointState(self.body, self.finger_joint, angle)
-        for joint, multiplier in self.mimic.items():
-            c.resetJointState(self.body, joint, multiplier * angle)
-        c.setJointMotorControl2(
-            self.body, self.finger_joint, pybullet.POSITION_CONTROL, targetPosition=angle,
-            force=self.settings.closing_torque * 4,
+        targets, forces = [], []
+        for side, (slide, lift, knuckles) in enumerate(zip(self.slides, self.lifts, self.knuckles)):
+            height, angle = self._arc(side, c.getJointState(self.body, slide)[0])
+            targets += [(lift, height), *((k, angle) for k in knuckles)]
+            forces += [self.settings.lift_force] + [self.settings.follower_force] * len(knuckles)
+        c.setJointMotorControlArray(
+            self.body, [j for j, _ in targets], pybullet.POSITION_CONTROL, targetPositions=[t for _, t in targets],
+            forces=forces,
+        )
+
+    def _carry_drives(self) -> None:
+        """Cancel the carriages' weight before every physics step (`CARRIAGE_MASS`)."""
+        c = self.world.client
+        for link in self.carriages:
+            centre = c.getLinkState(self.body, link)[0]
+            c.applyExternalForce(self.body, link, [0.0, 0.0, -CARRIAGE_MASS * self.world.physics.gravity], centre,
+                                 pybullet.WORLD_FRAME)
+
+    def set_travel(self, travel: float) -> None:
+        """Place both fingers at a slide travel instantly (no physics) and hold them there; used at reset and for
+        calibration."""
+        c = self.world.client
+        for side, (slide, lift, knuckles) in enumerate(zip(self.slides, self.lifts, self.knuckles)):
+            height, angle = self._arc(side, travel)
+            c.resetJointState(self.body, slide, travel)
+            c.resetJointState(self.body, lift, height)
+            for knuckle in knuckles:
+                c.resetJointState(self.body, knuckle, angle)
+        c.setJointMotorControlArray(
+            self.body, list(self.slides), pybullet.POSITION_CONTROL, targetPositions=[travel] * 2,
+            forces=[self.settings.grip_force] * 2,
         )
 
     def set_width(self, width: float) -> None:
-        self.set_angle(self.angle_for_width(width))
+        self.set_travel(self.travel_for_width(width))
 
-    def angle(self) -> float:
-        return float(self.world.client.getJointState(self.body, self.finger_joint)[0])
+    def travel(self) -> tuple[float, float]:
+        """Each slide's travel (m) from fully open."""
+        c = self.world.client
+        return tuple(float(c.getJointState(self.body, slide)[0]) for slide in self.slides)
 
     def width(self) -> float:
         """Current pad gap in metres."""
-        return self.width_for_angle(self.angle())
+        return self.max_width - sum(self.travel())
 
     def finger_asymmetry(self) -> float:
         """Distance (m) between the two pad centres' offsets from the gripper's centre plane, i.e. how far the
@@ -195,27 +364,30 @@ class Robotiq2F85:
     # --- actuation --------------------------------------------------------------------------------------------
 
     def command_close(self) -> None:
-        """Velocity control towards closed with the force (torque) limit: squeezes whatever is between the pads."""
-        self.world.client.setJointMotorControl2(
-            self.body, self.finger_joint, pybullet.VELOCITY_CONTROL, targetVelocity=self.settings.closing_speed,
-            force=self.settings.closing_torque,
+        """Velocity control of both slides towards closed with the grip force as the force limit: each pad squeezes
+        whatever is between them with `grip_force`."""
+        self.world.client.setJointMotorControlArray(
+            self.body, list(self.slides), pybullet.VELOCITY_CONTROL, targetVelocities=[self.settings.closing_speed] * 2,
+            forces=[self.settings.grip_force] * 2,
         )
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
-        """Close until the finger stalls (contact) or the gripper is shut; returns the number of physics steps."""
+        """Close until both fingers stall (contact) or the gripper is shut; returns the number of physics steps."""
         self.command_close()
-        c = self.world.client
-        history: list[float] = []
+        history: list[tuple[float, float]] = []
         window = self.settings.stall_steps
+        shut = self.max_travel - 0.0005
         for step in range(1, max_steps + 1):
             if on_step is not None:
                 on_step()
             self.world.step()
-            position = c.getJointState(self.body, self.finger_joint)[0]
-            if position >= FINGER_JOINT_MAX - 0.01:
+            travel = self.travel()
+            if min(travel) >= shut:
                 return step
-            history.append(position)
-            if step > 10 and abs(history[-1] - history[-1 - window]) < self.settings.stall_travel:
+            history.append(travel)
+            if step > 10 and all(
+                abs(now - then) < self.settings.stall_travel for now, then in zip(history[-1], history[-1 - window])
+            ):
                 return step
         return max_steps
 
@@ -229,30 +401,24 @@ SLIDE_GAINS = (0.05, 1.0)
 
 @lru_cache(maxsize=1)
 def gantry_urdf() -> Path:
-    """The 2F-85 description (assets/robots/robotiq_2f85.urdf) mounted on three prismatic slides (x, y, z of a
-    fixed anchor), written once per process to a temporary file with absolute mesh paths."""
-    text = (ROBOT_ASSETS / "robotiq_2f85.urdf").read_text()
-    text = text.replace('filename="robotiq_2f85/', f'filename="{ROBOT_ASSETS}/robotiq_2f85/')
-    inertial = '<inertial><mass value="{:g}"/><inertia ixx="1e-3" ixy="0" ixz="0" iyy="1e-3" iyz="0" izz="1e-3"/></inertial>'
-    chain, parent = [f'<link name="gantry_anchor">{inertial.format(0.0)}</link>'], "gantry_anchor"
+    """The simulated 2F-85 (`simulated_robot` of assets/robots/robotiq_2f85.urdf) mounted on three prismatic slides
+    (x, y, z of a fixed anchor), written once per process."""
+    robot = simulated_robot(GRIPPER_DESCRIPTION)
+    if not any(link.get("name") == GANTRY_TOOL_LINK for link in robot.iter("link")):
+        raise ValueError(f"{ROBOT_ASSETS / GRIPPER_DESCRIPTION} has no link {GANTRY_TOOL_LINK!r}")
+    parent = "gantry_anchor"
+    ET.SubElement(robot, "link", name=parent).append(_inertial(0.0))
     for name, axis, child in (("x", "1 0 0", "gantry_x_carriage"), ("y", "0 1 0", "gantry_y_carriage"), ("z", "0 0 1", GANTRY_TOOL_LINK)):
         if child != GANTRY_TOOL_LINK:
-            chain.append(f'<link name="{child}">{inertial.format(SLIDE_MASS)}</link>')
-        chain.append(
-            f'<joint name="gantry_{name}" type="prismatic"><parent link="{parent}"/><child link="{child}"/>'
-            f'<origin xyz="0 0 0"/><axis xyz="{axis}"/>'
-            f'<limit lower="-2" upper="2" effort="{SLIDE_FORCE:g}" velocity="1"/></joint>'
-        )
+            ET.SubElement(robot, "link", name=child).append(_inertial(SLIDE_MASS, 1e-3))
+        joint = ET.SubElement(robot, "joint", name=f"gantry_{name}", type="prismatic")
+        ET.SubElement(joint, "parent", link=parent)
+        ET.SubElement(joint, "child", link=child)
+        ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
+        ET.SubElement(joint, "axis", xyz=axis)
+        ET.SubElement(joint, "limit", lower="-2", upper="2", effort=f"{SLIDE_FORCE:g}", velocity="1")
         parent = child
-    anchor = f'<link name="{GANTRY_TOOL_LINK}">'
-    if anchor not in text:
-        raise ValueError(f"{ROBOT_ASSETS / 'robotiq_2f85.urdf'} has no link {GANTRY_TOOL_LINK!r}")
-    text = text.replace(anchor, "\n  ".join(chain) + "\n  " + anchor, 1)
-    directory = tempfile.mkdtemp(prefix="seggrasp-gantry-")
-    atexit.register(shutil.rmtree, directory, ignore_errors=True)
-    path = Path(directory) / "robotiq_2f85_gantry.urdf"
-    path.write_text(text)
-    return path
+    return write_urdf(robot, "robotiq_2f85_gantry.urdf")
 
 
 class FloatingGripper:
@@ -282,7 +448,7 @@ class FloatingGripper:
         c = world.client
         joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
         self.slides = [joints[f"gantry_{axis}"] for axis in "xyz"]
-        self.gripper = Robotiq2F85(world, self.body, joints["gantry_z"], settings)  # the slide z carries the gripper
+        self.gripper = Robotiq2F85(world, self.body, joints["gantry_z"], GRIPPER_DESCRIPTION, settings)  # the slide z carries the gripper
         self._anchor = self.T_world_home.copy()
         self._commanded = self.T_world_home.copy()
         self.max_speed = 0.5  # m/s along straight lines

@@ -19,7 +19,7 @@ import numpy as np
 import pybullet
 from scipy.spatial.transform import Rotation
 
-from sim.gripper import GripperSettings, Robotiq2F85
+from sim.gripper import GripperSettings, Robotiq2F85, simulated_urdf
 from sim.world import PATH_RESOLUTION, World, linear_poses
 
 ARM_JOINTS = (
@@ -32,6 +32,8 @@ DH_A = np.array([0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])
 DH_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 #: URDF base_link = DH base turned by pi about z.
 T_BASELINK_DHBASE = np.diag([-1.0, -1.0, 1.0, 1.0])
+#: The arm with the gripper on its flange (assets/robots/).
+ARM_DESCRIPTION = "ur5_robotiq_2f85.urdf"
 #: Flange (tool0) -> gripper base: the 13.9 mm Robotiq coupling.
 T_FLANGE_GRIPPER = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0.0139], [0, 0, 0, 1.0]])
 #: Joint limits used for planning: the shoulder stays above the horizontal, the rest as the robot allows.
@@ -82,12 +84,12 @@ class UR5Arm:
         self.world = world
         self.settings = settings or ArmSettings()
         c = world.client
-        self.body = world.load_robot("ur5_robotiq_2f85.urdf")
+        self.body = world.load_robot(simulated_urdf(ARM_DESCRIPTION))
         joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
         links = {c.getJointInfo(self.body, j)[12].decode(): j for j in range(c.getNumJoints(self.body))}
         self.arm_joints = [joints[n] for n in ARM_JOINTS]
         self.gripper_base_link = links[GRIPPER_BASE_LINK]
-        self.gripper = Robotiq2F85(world, self.body, self.gripper_base_link, gripper)
+        self.gripper = Robotiq2F85(world, self.body, self.gripper_base_link, ARM_DESCRIPTION, gripper)
         self.q_commanded = HOME_Q.copy()
 
     # --- kinematics -----------------------------------------------------------------------------------------

@@ -162,10 +162,9 @@ class World:
         )
         c.changeDynamics(self.table_id, -1, lateralFriction=0.6)
 
-    def load_robot(self, urdf_name: str, T_world_base: np.ndarray | None = None, fixed: bool = True) -> int:
-        """Load a URDF from assets/robots/ and return its body id."""
-        path = ROBOT_ASSETS / urdf_name
-        if not path.is_file():
+    def load_robot(self, path: Path, T_world_base: np.ndarray | None = None, fixed: bool = True) -> int:
+        """Load a robot's URDF file and return its body id."""
+        if not Path(path).is_file():
             raise FileNotFoundError(f"robot description not found: {path}")
         position, orientation = pose_to_pb(np.eye(4) if T_world_base is None else T_world_base)
         return self.client.loadURDF(

@@ -72,7 +72,6 @@ def test_grip_force_is_a_setting_within_the_2f85_range_shared_with_the_real_cell
     with open(Path(__file__).resolve().parents[1] / "hardware" / "cell.example.yaml") as handle:
         assert yaml.safe_load(handle)["gripper"]["force"] == DEFAULT_GRIP_FORCE
     assert GripperSettings().grip_force == DEFAULT_GRIP_FORCE
-    assert GripperSettings(GRIP_FORCE_RANGE[1]).closing_torque > GripperSettings().closing_torque
     with pytest.raises(ValueError, match="grip_force"):
         GripperSettings(grip_force=300.0)
 
@@ -122,3 +121,34 @@ def test_the_floating_gripper_lifts_a_claw_hammer_by_its_handle():
             cell.reset(seed=10884, object_id="hammer_claw")
             outcomes.append(cell.execute(grasps.poses[index], grasps.widths[index]))
         assert all(outcome.lifted for outcome in outcomes), [outcome.message for outcome in outcomes]
+
+
+def test_the_pads_on_slides_trace_the_linkage_of_the_description():
+    """The simulated fingertips hang on slides (`sim.gripper.slide_fingertips`); at every opening their pads sit
+    where the description's six-bar linkage puts them, parallel, as on the real 2F-85."""
+    import pybullet
+
+    from sim.gripper import ARC_ANGLES, GRIPPER_DESCRIPTION, PAD_LINKS, SIDES, Robotiq2F85, simulated_urdf
+    from sim.world import ROBOT_ASSETS, World
+
+    world = World()
+    try:
+        c = world.client
+        linkage = c.loadURDF(str(ROBOT_ASSETS / GRIPPER_DESCRIPTION), useFixedBase=True)  # relative mesh paths
+        slid = world.load_robot(simulated_urdf(GRIPPER_DESCRIPTION))
+        gripper = Robotiq2F85(world, slid, -1, GRIPPER_DESCRIPTION)
+        joints = {c.getJointInfo(linkage, j)[1].decode(): j for j in range(c.getNumJoints(linkage))}
+        links = {c.getJointInfo(linkage, j)[12].decode(): j for j in range(c.getNumJoints(linkage))}
+        travels = gripper.arcs[0][0]
+        assert np.all(np.diff(travels) > 0)
+        for angle, travel in zip(ARC_ANGLES[::4], travels[::4]):
+            for side in SIDES:
+                c.resetJointState(linkage, joints[side[0]], angle)
+                c.resetJointState(linkage, joints[side[2]], -angle)
+            gripper.set_travel(travel)
+            for name, pad in zip(PAD_LINKS, gripper.pad_links):
+                expected, simulated = world.link_pose(linkage, links[name]), world.link_pose(slid, pad)
+                assert np.abs(simulated[:3, 3] - expected[:3, 3]).max() < 1e-5
+                assert np.abs(simulated[:3, :3] - expected[:3, :3]).max() < 1e-6  # parallel to the open pose's
+    finally:
+        world.close()

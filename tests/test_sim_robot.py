@@ -55,11 +55,11 @@ def test_ik_round_trip_and_reachability_check(arm):
 def test_gripper_stroke_matches_the_datasheet(arm):
     gripper = arm.gripper
     assert gripper.max_width == pytest.approx(MAX_WIDTH, abs=0.003)  # 85 mm stroke
-    assert gripper.width_for_angle(0.8) < 0.005
-    widths = [gripper.width_for_angle(a) for a in np.linspace(0, 0.8, 20)]
+    assert gripper.width_for_travel(gripper.max_travel) < 0.005
+    widths = [gripper.width_for_travel(t) for t in np.linspace(0, gripper.max_travel, 20)]
     assert np.all(np.diff(widths) < 0)
     for width in (0.01, 0.04, 0.08):
-        assert gripper.width_for_angle(gripper.angle_for_width(width)) == pytest.approx(width, abs=1e-4)
+        assert gripper.width_for_travel(gripper.travel_for_width(width)) == pytest.approx(width, abs=1e-4)
     gripper.set_width(0.06)
     assert gripper.width() == pytest.approx(0.06, abs=1e-4)
     assert gripper.finger_asymmetry() < 1e-4
