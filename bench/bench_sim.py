@@ -1,12 +1,12 @@
 """Benchmark of the PyBullet cell: physics steps per second, one grasp-and-lift trial (arm and floating), capture.
 
-    python bench/bench_sim.py [--trials 5] [--scene-png docs/scene.png] [--no-legacy] [--out docs/results/bench-sim.md]
+    python bench/bench_sim.py [--trials 5] [--scene-png docs/scene.png] [--against DIR] [--out docs/results/bench-sim.md]
 
 Trials are scripted top-down grasps on a 5 x 5 x 8 cm box (0.2 kg), each from a fresh `reset`; the wall time of a
-trial covers planning (IK, table checks) and the simulated approach, close, 20 cm lift and 1 s hold. Unless
-`--no-legacy`, the arm trial is also timed with the solver settings used before the gripper converged
-(`sim.world.LEGACY_PHYSICS`), interleaved with the current settings in the same run, and the ratio is printed.
-The lines printed are also written to `--out` (atomically).
+trial covers planning (IK, table checks) and the simulated approach, close, 20 cm lift and 1 s hold. With
+`--against DIR` (another checkout of this repository, e.g. `git worktree add /tmp/before <commit>`), the arm trial
+is also timed in both checkouts, one trial each in turn in fresh processes, so that both see the same machine load,
+and the ratio of the medians is printed. The lines printed are also written to `--out` (atomically).
 """
 
 from __future__ import annotations
@@ -14,7 +14,10 @@ from __future__ import annotations
 import argparse
 import io
 import logging
+import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -27,7 +30,7 @@ from seggrasp.views import look_at
 from sim.cameras import VirtualD435
 from sim.cell import SimCell
 from sim.primitives import primitive_object, top_down_grasp
-from sim.world import LEGACY_PHYSICS, PhysicsSettings
+from sim.world import PhysicsSettings
 
 
 def bench_embodiment(
@@ -97,23 +100,43 @@ def _line(label: str, r: dict[str, float], trials: int) -> str:
     )
 
 
-def compare_legacy(box, trials: int) -> list[str]:
-    """Arm trials with the current and the legacy solver settings, alternating one trial batch each, so that both
-    see the same machine load; returns the printed lines."""
-    times: dict[str, list[float]] = {"current": [], "legacy": []}
-    lifted = {"current": 0, "legacy": 0}
+#: One arm trial on the benchmark box in a fresh process, printed as JSON; run inside either checkout.
+ONE_ARM_TRIAL = """
+import json, sys, tempfile
+sys.path.insert(0, "bench")
+from bench_sim import bench_embodiment
+from sim.primitives import primitive_object
+with tempfile.TemporaryDirectory() as tmp:
+    box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)
+    print(json.dumps(bench_embodiment(box, "arm", 1, idle_and_capture=False)))
+"""
+
+
+def arm_trial_in(checkout: Path) -> dict[str, float]:
+    """{trial_s, lifted} of one arm trial run by the code of `checkout`."""
+    env = dict(os.environ, PYTHONPATH=str(checkout))
+    result = subprocess.run([sys.executable, "-c", ONE_ARM_TRIAL], cwd=checkout, env=env, capture_output=True,
+                            text=True, check=False)
+    if result.returncode:
+        raise RuntimeError(f"the arm trial failed in {checkout}:\n{result.stderr[-2000:]}")
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def compare_checkouts(other: Path, trials: int) -> list[str]:
+    """Arm trials in this checkout and in `other`, alternating, one fresh process each; returns the printed lines."""
+    here = Path(__file__).resolve().parents[1]
+    times: dict[Path, list[float]] = {here: [], other: []}
+    lifted = {here: 0, other: 0}
     for _ in range(trials):
-        for label, physics in (("current", None), ("legacy", LEGACY_PHYSICS)):
-            r = bench_embodiment(box, "arm", 1, physics, idle_and_capture=False)
-            times[label].append(r["trial_s"])
-            lifted[label] += r["lifted"]
-    current, legacy = (float(np.median(times[k])) for k in ("current", "legacy"))
+        for checkout in (here, other):
+            r = arm_trial_in(checkout)
+            times[checkout].append(r["trial_s"])
+            lifted[checkout] += int(r["lifted"])
+    current, reference = (float(np.median(times[k])) for k in (here, other))
     return [
-        f"arm trial, current solver ({PhysicsSettings().solver_iterations} iterations, contact ERP "
-        f"{PhysicsSettings().contact_erp}): {current:.3f} s median, lifted {lifted['current']}/{trials}",
-        f"arm trial, legacy solver ({LEGACY_PHYSICS.solver_iterations} iterations, default contact ERP): "
-        f"{legacy:.3f} s median, lifted {lifted['legacy']}/{trials}",
-        f"ratio current / legacy: {current / legacy:.2f}x",
+        f"arm trial, this checkout: {current:.3f} s median, lifted {lifted[here]}/{trials}",
+        f"arm trial, {other}: {reference:.3f} s median, lifted {lifted[other]}/{trials}",
+        f"ratio this / other: {current / reference:.2f}x",
     ]
 
 
@@ -121,11 +144,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=5)
     parser.add_argument("--scene-png", type=Path, default=None, help="also write an overview image of the scene")
-    parser.add_argument("--no-legacy", action="store_true", help="skip timing the legacy solver settings")
+    parser.add_argument("--against", type=Path, default=None, metavar="DIR",
+                        help="also time the arm trial in another checkout of this repository, side by side")
     parser.add_argument("--out", type=Path, default=Path("docs/results/bench-sim.md"), help="where to write the lines")
     args = parser.parse_args()
     if args.trials < 1:
         parser.error("--trials must be at least 1")
+    if args.against is not None and not (args.against / "bench" / "bench_sim.py").is_file():
+        parser.error(f"--against {args.against}: not a checkout of this repository (no bench/bench_sim.py there)")
     logging.basicConfig(level=logging.WARNING)
     lines = [f"load average before the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores"]
     print(lines[0], flush=True)
@@ -134,11 +160,11 @@ def main() -> None:
         for embodiment in ("arm", "floating"):
             lines.append(_line(embodiment, bench_embodiment(box, embodiment, args.trials), args.trials))
             print(lines[-1], flush=True)
-        if not args.no_legacy:
-            for line in compare_legacy(box, args.trials):
+        if args.against is not None:
+            for line in compare_checkouts(args.against.resolve(), args.trials):
                 lines.append(line)
                 print(line, flush=True)
-    command = f"python bench/bench_sim.py --trials {args.trials}" + (" --no-legacy" if args.no_legacy else "")
+    command = f"python bench/bench_sim.py --trials {args.trials}" + (f" --against {args.against}" if args.against else "")
     atomic_write_text(args.out, f"# bench_sim\n\n```\n$ {command}\n" + "\n".join(lines) + "\n```\n")
     if args.scene_png is not None:
         write_scene_png(args.scene_png)

@@ -310,7 +310,7 @@ class GraspPrimitive:
         self.robot.follow(paths[1], s.approach_speed)
         moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
-        self.gripper.close_until_stall(on_step=self._converge)
+        self.gripper.close_until_stall()
         self._snap("closed")
         touched = self._pad_contacts()
         if {side for side, _, _ in touched} != {0, 1}:
@@ -325,7 +325,6 @@ class GraspPrimitive:
             steps[0] += 1
             if steps[0] % TRACK_EVERY:
                 return
-            self._converge()
             T_tcp_obj = np.linalg.inv(self._T_world_tcp()) @ self.world.body_pose(self.object_body)
             moved, turned = _moved(T_tcp_obj0, T_tcp_obj, point)
             drift[0], drift[1] = max(drift[0], moved), max(drift[1], turned)
@@ -364,25 +363,6 @@ class GraspPrimitive:
             reachable=True, lifted=not failure, lift_height=max(rise, 0.0), touched_faces=faces,
             contact_force=force, message=message, failure=failure, touched_weights=weights,
         )
-
-    def _pad_tilt(self) -> float:
-        """Angle (rad) between the two pads' approach axes: 0 when they are parallel, as the real 2F-85 keeps them."""
-        left, right = (self.world.link_pose(self.gripper.body, link)[:3, 2] for link in self.gripper.pad_links)
-        return float(np.arccos(np.clip(left @ right, -1.0, 1.0)))
-
-    def _converge(self) -> bool:
-        """Raise the solver iterations to `PhysicsSettings.converged_iterations` (once per trial) when the squeeze
-        has tilted the pads apart beyond `pad_tilt_tolerance_deg`: the finger linkage has not converged, and
-        tilted pads squeeze a thin part towards the fingertips and roll it. True if raised."""
-        physics = self.world.physics
-        if physics.pad_tilt_tolerance_deg is None or self.world.solver_iterations >= physics.converged_iterations:
-            return False
-        tilt = self._pad_tilt()
-        if tilt <= np.deg2rad(physics.pad_tilt_tolerance_deg):
-            return False
-        log.debug("pads tilted %.2f deg: %d solver iterations", np.rad2deg(tilt), physics.converged_iterations)
-        self.world.set_solver_iterations(physics.converged_iterations)
-        return True
 
     def _T_world_tcp(self) -> np.ndarray:
         return self.world.link_pose(self.gripper.body, self.gripper.base_link) @ self._T_base_tcp

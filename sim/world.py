@@ -39,15 +39,11 @@ PATH_RESOLUTION = 0.01
 class PhysicsSettings:
     """Time step and solver settings (240 Hz is PyBullet's tuned default).
 
-    The solver must converge on the gripper's light finger links squeezed by a strong motor: with 50 iterations
-    and PyBullet's default contact ERP the pads sink millimetres into what they hold. 100 iterations with a contact
-    ERP of 0.8 (penetration corrected within a few steps) keep them on the surface at the default grip force
-    (`tests/test_sim_gripper.py`; `bench/bench_sim.py --compare-legacy` times both). `contact_erp=None` keeps
-    PyBullet's default (`LEGACY_PHYSICS`, the settings before this change). Squeezing at the grip force, though,
-    100 iterations let the pads splay apart at the fingertips (3.5-5 deg) and cap the squeeze near 100 N; with
-    `pad_tilt_tolerance_deg` set (`CONVERGED_FINGERS`, `python -m sim.evaluate --converged-fingers`) the grasp
-    primitive switches to `converged_iterations` once they tilt beyond it (`sim.cell.GraspPrimitive`), at about
-    4.5x the physics time of a trial, so it is not the default.
+    The solver must converge on the gripper's fingers squeezed by its motor: with 50 iterations and PyBullet's
+    default contact ERP the pads sank millimetres into what they held. 100 iterations with a contact ERP of 0.8
+    (penetration corrected within a few steps) keep them on the surface and deliver the grip force
+    (`tests/test_sim_gripper.py`, with the fingertips on slides: `sim.gripper`). `contact_erp=None` keeps PyBullet's
+    default.
     """
 
     time_step: float = 1.0 / 240.0
@@ -57,18 +53,8 @@ class PhysicsSettings:
     # fingers at 100 iterations (a 20 g toothbrush falls during the lift) and needs `light_object_iterations`
     light_object_mass: float = 0.05
     light_object_iterations: int | None = 300
-    # the pads of a converged 2F-85 stay parallel; when a squeeze tilts them further apart than this (deg) the
-    # grasp primitive solves the rest of the trial with `converged_iterations` (between splayed pads a thin round
-    # part is squeezed towards the fingertips and rolls; docs/results/twin-physics-round4-roll.md)
-    pad_tilt_tolerance_deg: float | None = None
-    converged_iterations: int = 1000
     gravity: float = -9.81
 
-
-#: The solver settings the twin used before the gripper converged (for side-by-side benchmarks).
-LEGACY_PHYSICS = PhysicsSettings(solver_iterations=50, contact_erp=None, light_object_iterations=None)
-#: The default settings plus the switch to `converged_iterations` once the squeeze splays the pads beyond 0.5 deg.
-CONVERGED_FINGERS = PhysicsSettings(pad_tilt_tolerance_deg=0.5)
 
 
 def pose_to_pb(T: np.ndarray) -> tuple[list[float], list[float]]:

@@ -79,14 +79,14 @@ def test_grip_force_is_a_setting_within_the_2f85_range_shared_with_the_real_cell
 def test_a_light_object_gets_the_solver_iterations_it_needs(tmp_path):
     """Issue 12: at 100 iterations a 20 g toothbrush squeezed at 100 N creeps out of the fingers during the lift
     (oracle 1/10 on its head, 10/10 at 300 iterations); heavier objects keep the faster setting."""
-    from sim.world import LEGACY_PHYSICS, PhysicsSettings, World
+    from sim.world import PhysicsSettings, World
 
     settings = PhysicsSettings()
     light = primitive_object("box", (0.10, 0.012, 0.012), tmp_path, mass=0.02, object_id="light")
     heavy = primitive_object("box", (0.10, 0.03, 0.03), tmp_path, mass=0.3, object_id="heavy")
     for physics, model, expected in (
         (settings, light, settings.light_object_iterations), (settings, heavy, settings.solver_iterations),
-        (LEGACY_PHYSICS, light, LEGACY_PHYSICS.solver_iterations),
+        (PhysicsSettings(light_object_iterations=None), light, settings.solver_iterations),
     ):
         world = World(physics=physics)
         try:

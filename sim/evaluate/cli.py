@@ -19,6 +19,7 @@ from sim.evaluate.config import (
     QUICK_TOP_K,
     REAL_DETECTORS,
     SIMULATED_PRESETS,
+    TWIN_GRIPPER,
     RunConfig,
 )
 from sim.evaluate.records import OutputLock, prepare_out
@@ -66,10 +67,6 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         help=f"twin only: the gripper's force in N, {GRIP_FORCE_RANGE[0]:g}-{GRIP_FORCE_RANGE[1]:g} like the "
                         f"2F-85 (default {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
                         "sampler's torsion limit follows it. A real cell grips with its cell.yaml's gripper.force")
-    parser.add_argument("--converged-fingers", action="store_true",
-                        help="twin only: once the squeeze splays the pads (> 0.5 deg), finish the trial at 1000 solver "
-                        "iterations so they stay parallel and carry the grip force (about 4.5x the physics time of "
-                        "a trial; docs/results/twin-physics-round4-roll.md)")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     args.embodiment_given = any(a == "--embodiment" or a.startswith("--embodiment=") for a in (argv or sys.argv[1:]))
@@ -130,8 +127,6 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
 
 
 def _check_twin_settings(args: argparse.Namespace) -> None:
-    if args.converged_fingers and args.backend == "real":
-        raise ValueError("--converged-fingers sets the twin's solver; the real cell has no solver to converge")
     if args.grip_force is None:
         return
     if args.backend == "real":
@@ -172,7 +167,7 @@ def build_config(args: argparse.Namespace) -> RunConfig:
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
         prompts=prompts, record=args.record,
         grip_force=DEFAULT_GRIP_FORCE if args.grip_force is None else args.grip_force,
-        converged_fingers=bool(args.converged_fingers),
+        twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "",
     )
 
 

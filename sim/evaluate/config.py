@@ -17,7 +17,11 @@ QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object 
 QUICK_TOP_K = 3
 #: Settings a resumed run must share with the run it continues (methods, objects and seeds are merged instead).
 RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts",
-               "grip_force", "converged_fingers")
+               "grip_force", "twin_gripper")
+#: The twin's gripper model (`sim.gripper`): "slides", the fingertips on force-limited slides traced from the
+#: 2F-85's linkage; runs before it simulated "linkage", the linkage's revolute joints. A run resumes only on the
+#: model it started with.
+TWIN_GRIPPER = "slides"
 #: CoACD's seed in every run: the one the bundled decompositions (assets/decompositions) were computed with. A cold
 #: decomposition sweep of the twin takes about a minute per object on a 2-core machine, so redrawing it per run seed
 #: would make a multi-seed run cold; the run seeds redraw the detector's errors, the scene poses and the grasps.
@@ -44,7 +48,7 @@ class RunConfig:
     prompts: list[str] = field(default_factory=list)
     record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
     grip_force: float = DEFAULT_GRIP_FORCE  # N: the twin gripper's force and the sampler's torsion limit (twin only)
-    converged_fingers: bool = False  # twin only: sim.world.CONVERGED_FINGERS instead of the default solver settings
+    twin_gripper: str = TWIN_GRIPPER  # the twin's gripper model ("" on the real cell)
 
     @property
     def uses_torch(self) -> bool:

@@ -191,10 +191,11 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
 
 def _upgraded(previous: dict) -> dict:
     """A run.json written before runs had several seeds (one `seed`; CoACD seeded with it), a grip force (100 N) or
-    the converged-fingers option (off)."""
+    a named twin gripper model (the linkage's revolute joints)."""
     if "seeds" not in previous and "seed" in previous:
         previous = dict(previous, seeds=[previous["seed"]], decomposition_seed=previous["seed"])
-    return dict({"grip_force": 100.0, "converged_fingers": False}, **previous)
+    twin_gripper = "linkage" if previous.get("backend", "sim") == "sim" else ""
+    return dict({"grip_force": 100.0, "twin_gripper": twin_gripper}, **previous)
 
 
 class VoteCache:

@@ -101,13 +101,11 @@ def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
     if _CELL is None or model.object_id not in _CELL_OBJECTS:
         from sim.cell import SimCell
         from sim.gripper import GripperSettings
-        from sim.world import CONVERGED_FINGERS
 
         objects = dict(_CELL_OBJECTS, **{model.object_id: model})
         close_cell()
         _CELL = SimCell(objects=list(objects.values()), embodiment=config.embodiment, seed=config.seed,
-                        gripper=GripperSettings(grip_force=config.grip_force),
-                        physics=CONVERGED_FINGERS if config.converged_fingers else None)
+                        gripper=GripperSettings(grip_force=config.grip_force))
         _CELL_OBJECTS.update(objects)
     return _CELL
 
