@@ -25,7 +25,7 @@ from hardware.realsense import RealSenseCamera
 from hardware.robotiq import RobotiqGripper
 from hardware.safety import SafetyGuard
 from hardware.ur import URArm
-from seggrasp.cell import MAX_SLIP, Frame, GraspOutcome, check_grip_force
+from seggrasp.cell import MAX_SLIP, Frame, GraspOutcome
 
 log = logging.getLogger(__name__)
 
@@ -181,12 +181,11 @@ class RealCell:
             "the real cell does not know the object's mesh or pose; reconstruct it from cell.capture() with "
             "seggrasp.perception.perceive_object(frames, workspace) (the mesh is then in the world frame)")
 
-    def execute(self, T_world_grasp: np.ndarray, width: float, force: float | None = None) -> GraspOutcome:
+    def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Pre-grasp, approach, close, lift, hold and judge; then put the object back and back off.
 
-        `T_world_grasp` is the gripper frame (pad centres) at the grasp, `width` the opening at which the pads
-        meet the object and `force` the grip force the grasp asks for (N; None: `gripper.force`), capped at
-        `limits.max_grip_force`. Returns `reachable=False` without moving when any pose breaks a limit or has no IK.
+        `T_world_grasp` is the gripper frame (pad centres) at the grasp and `width` the opening at which the pads
+        meet the object. Returns `reachable=False` without moving when any pose breaks a limit or has no IK.
         """
         self._check_open()
         T_grasp = np.asarray(T_world_grasp, dtype=np.float64)
@@ -194,9 +193,7 @@ class RealCell:
             raise ValueError(f"T_world_grasp must be a finite 4x4 matrix, got shape {T_grasp.shape}")
         if not np.isfinite(width) or width < 0:
             raise ValueError(f"grasp width must be a non-negative number, got {width!r}")
-        check_grip_force(force)
         cfg, motion = self.config, self.config.motion
-        force = cfg.gripper.force if force is None else min(force, cfg.limits.max_grip_force)
         if width > cfg.gripper.stroke:
             return self._not_reached(f"grasp width {width:.4f} m exceeds the gripper stroke {cfg.gripper.stroke} m")
 
@@ -229,7 +226,7 @@ class RealCell:
 
         try:
             stage = "closing the gripper"
-            grip = self.gripper.close(speed=cfg.gripper.speed, force=force)
+            grip = self.gripper.close(speed=cfg.gripper.speed, force=cfg.gripper.force)
             stage = "lifting"
             self.arm.move_linear(lift, motion.tool_speed, motion.tool_acceleration)
             stage = "holding"
@@ -256,7 +253,7 @@ class RealCell:
         log.info("grasp outcome: %s", message)
         lifted = held and not failure
         return GraspOutcome(reachable=True, lifted=lifted, lift_height=motion.lift_height if lifted else 0.0,
-                            contact_force=force if held else 0.0, contacts_observed=False,
+                            contact_force=cfg.gripper.force if held else 0.0, contacts_observed=False,
                             message=message, failure=failure)
 
     def close(self) -> None:

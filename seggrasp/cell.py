@@ -27,18 +27,11 @@ class Frame:
 
 #: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting, shared by the twin
 #: (`sim.gripper.GripperSettings`; a twin run sets another with `python -m sim.evaluate --grip-force N`), the grasp
-#: sampler (a grasp asks for more when its gravity torque needs it: `AntipodalConfig.grip_forces`) and the real
-#: cell (hardware/cell.example.yaml `gripper.force`, capped by its `limits.max_grip_force`; hardware/config.py's
-#: default). At 40 N mug, knife and hammer handles turn in the fingers under their own weight.
+#: sampler's torque limit and the real cell (hardware/cell.example.yaml `gripper.force`, at the example's
+#: `limits.max_grip_force`; hardware/config.py's default). At 40 N mug, knife and hammer handles turn in the fingers
+#: under their own weight; why the default stays at 100 N: docs/results/twin-physics.md, fourth round.
 GRIP_FORCE_RANGE = (20.0, 235.0)
 DEFAULT_GRIP_FORCE = 100.0
-
-
-def check_grip_force(force: float | None, name: str = "grip force") -> None:
-    """Raise ValueError unless `force` is None or a number of newtons within the 2F-85's `GRIP_FORCE_RANGE`."""
-    low, high = GRIP_FORCE_RANGE
-    if force is not None and not low <= force <= high:  # also rejects nan
-        raise ValueError(f"{name} must be within the 2F-85's {low:g}-{high:g} N, got {force}")
 
 # Success as a lab judges it, the same on both backends: the grasped point rises at least LIFT_SUCCESS (m; the
 # lift is 20 cm) and the object moves less than MAX_SLIP (m) and MAX_ROTATION_DEG in the fingers from the close to
@@ -109,9 +102,8 @@ class Cell(Protocol):
         reconstructed from `capture()` instead.
         """
 
-    def execute(self, T_world_grasp: np.ndarray, width: float, force: float | None = None) -> GraspOutcome:
-        """Pre-grasp, approach, close (with `force` N, within `GRIP_FORCE_RANGE`; None: the cell's setting), lift
-        20 cm and hold; report the outcome. Never raises for a failed grasp."""
+    def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+        """Pre-grasp, approach, close, lift 20 cm and hold; report the outcome. Never raises for a failed grasp."""
 
     def close(self) -> None:
         """Release the backend's resources (physics client, robot connection, cameras)."""

@@ -118,7 +118,6 @@ class TrialRecord:
     executed: bool
     grasp_score: float | None = None
     width: float | None = None
-    grip_force: float | None = None  # N the grasp asked for (None: the cell's setting)
     T_world_grasp: list | None = None
     quaternion_xyzw: list | None = None
     contacts_on_part: bool | None = None
@@ -157,12 +156,10 @@ def observe(cell: Cell, perceive: bool = False, workspace=None) -> Observation:
     return Observation(mesh, np.asarray(T_world_obj, dtype=np.float64))
 
 
-def grasp_key(T_world_grasp: np.ndarray, width: float, force: float | None = None) -> str:
-    """Content key of a world grasp and its grip force (for reusing outcomes of a deterministic backend)."""
+def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
+    """Content key of a world grasp (for reusing outcomes of a deterministic backend)."""
     digest = hashlib.sha1(np.round(np.asarray(T_world_grasp, dtype=np.float64), 6).tobytes())
     digest.update(np.round(np.float64(width), 6).tobytes())
-    if force is not None:
-        digest.update(np.round(np.float64(force), 3).tobytes())
     return digest.hexdigest()
 
 
@@ -357,15 +354,13 @@ class Episode:
             record.failure = failure_of(None, None, None)
             return record
         T_world_grasp, width = slot.grasp.poses[0], float(slot.grasp.widths[0])
-        force = slot.grasp.force(0)
         score = float(slot.grasp.scores[0])
         record.grasp_score = score if np.isfinite(score) else None
         record.width = width
-        record.grip_force = force
         record.T_world_grasp = np.round(T_world_grasp, 6).tolist()
         record.quaternion_xyzw = Rotation.from_matrix(T_world_grasp[:3, :3]).as_quat().tolist()
         record.contacts_on_part = self.contacts_on_part(slot)
-        outcome = self._outcome(T_world_grasp, width, force, reset, record)
+        outcome = self._outcome(T_world_grasp, width, reset, record)
         record.executed = True
         record.reachable = bool(outcome.reachable)
         record.lifted = bool(outcome.lifted)
@@ -391,16 +386,14 @@ class Episode:
         o = self.observation
         return self.truth.contacts_on_part(slot.grasp.contacts[0], o.T_world_obj, o.perceived, slot.prompt_index)
 
-    def _outcome(
-        self, T_world_grasp: np.ndarray, width: float, force: float | None, reset: bool, record: TrialRecord,
-    ) -> GraspOutcome:
-        key = grasp_key(T_world_grasp, width, force)
+    def _outcome(self, T_world_grasp: np.ndarray, width: float, reset: bool, record: TrialRecord) -> GraspOutcome:
+        key = grasp_key(T_world_grasp, width)
         if self.outcome_cache is not None and key in self.outcome_cache:
             record.reused_outcome = True
             return self.outcome_cache[key]
         if reset:
             self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
-        outcome = self.cell.execute(T_world_grasp, width, force)
+        outcome = self.cell.execute(T_world_grasp, width)
         if self.outcome_cache is not None:
             self.outcome_cache[key] = outcome
         return outcome

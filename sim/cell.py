@@ -30,7 +30,7 @@ import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from seggrasp.cell import LIFT_SUCCESS, MAX_ROTATION_DEG, MAX_SLIP, Frame, GraspOutcome, check_grip_force
+from seggrasp.cell import LIFT_SUCCESS, MAX_ROTATION_DEG, MAX_SLIP, Frame, GraspOutcome
 from seggrasp.objects import ObjectModel
 from seggrasp.perception import Workspace
 from seggrasp.views import look_at
@@ -193,18 +193,16 @@ class SimCell:
         self._require_scene()
         return self.current_object.mesh, self.world.body_pose(self.object_body)
 
-    def execute(self, T_world_grasp: np.ndarray, width: float, force: float | None = None) -> GraspOutcome:
-        """Grasp-and-lift (module docstring), closing with `force` N (None: the gripper's `grip_force`).
-        Unreachable or colliding poses give `reachable=False`."""
+    def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+        """Grasp-and-lift (module docstring). Unreachable or colliding poses give `reachable=False`."""
         self._require_scene()
         T_world_grasp = _check_pose(T_world_grasp)
         if not np.isfinite(width) or width < 0:
             raise ValueError(f"grasp width must be a non-negative number of metres, got {width}")
-        check_grip_force(force)
         recorder, self._recorder = self._recorder, None
         outcome = GraspPrimitive(
             self.world, self.robot, self.object_body, self.current_object, self.grasp_settings, recorder
-        ).run(T_world_grasp, float(width), force)
+        ).run(T_world_grasp, float(width))
         if recorder is not None and not outcome.reachable:
             recorder.write(f"{self.current_object.object_id}: {outcome.message}")
         return outcome
@@ -272,8 +270,7 @@ class GraspPrimitive:
         self.gripper = robot.gripper
         self.recorder = recorder
 
-    def run(self, T_world_grasp: np.ndarray, width: float, force: float | None = None) -> GraspOutcome:
-        """Plan and execute one grasp, closing with `force` (N; None: the gripper's setting)."""
+    def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         s = self.settings
         opening = min(width + s.width_margin, self.gripper.max_width)
         self._T_base_tcp = self.gripper.T_base_tcp(min(width, self.gripper.max_width))
@@ -304,16 +301,16 @@ class GraspPrimitive:
         self.gripper.set_width(opening)
         self.robot.move_free(transit)
         self._snap("pre-grasp")
-        return self._grasp_and_lift(paths, force)
+        return self._grasp_and_lift(paths)
 
-    def _grasp_and_lift(self, paths: list, force: float | None) -> GraspOutcome:
+    def _grasp_and_lift(self, paths: list) -> GraspOutcome:
         """Approach, close, lift and hold along a checked plan; judge the grasp (class docstring)."""
         s = self.settings
         T_obj_start = self.world.body_pose(self.object_body)
         self.robot.follow(paths[1], s.approach_speed)
         moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
-        self.gripper.close_until_stall(force=force)
+        self.gripper.close_until_stall()
         self._snap("closed")
         touched = self._pad_contacts()
         if {side for side, _, _ in touched} != {0, 1}:

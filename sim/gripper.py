@@ -30,7 +30,7 @@ import numpy as np
 import pybullet
 from scipy.spatial.transform import Rotation
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE, check_grip_force
+from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from sim.world import PATH_RESOLUTION, ROBOT_ASSETS, World, linear_poses, pose_to_pb
 
 #: The body the fingers hang from, and each side's linkage: (outer knuckle joint, inner knuckle joint, inner
@@ -90,7 +90,9 @@ class GripperSettings:
     follower_force: float = 50.0
 
     def __post_init__(self) -> None:
-        check_grip_force(self.grip_force, "grip_force")
+        low, high = GRIP_FORCE_RANGE
+        if not low <= self.grip_force <= high:
+            raise ValueError(f"grip_force must be within the 2F-85's {low:g}-{high:g} N, got {self.grip_force}")
 
 
 # --- the simulated description ------------------------------------------------------------------------------------
@@ -235,7 +237,7 @@ class Robotiq2F85:
         self.lifts = tuple(names[side[4]] for side in SIDES)
         self.knuckles = tuple((names[side[0]], names[side[1]]) for side in SIDES)
         self.arcs = description_arcs(description)
-        self._closing, self._force = False, self.settings.grip_force
+        self._closing = False
         self.pad_links = tuple(links[n] for n in PAD_LINKS)
         self.fingertip_links = tuple(tuple(links[n] for n in side) for side in FINGERTIP_LINKS)
         self.carriages = tuple(links[side[3].replace("slide", "carriage")] for side in SIDES)
@@ -327,7 +329,7 @@ class Robotiq2F85:
             c.setJointMotorControlArray(
                 self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
                 targetVelocities=[self.settings.closing_speed + correction, self.settings.closing_speed - correction],
-                forces=[self._force] * 2,
+                forces=[self.settings.grip_force] * 2,
             )
 
     def _carry_drives(self) -> None:
@@ -375,20 +377,18 @@ class Robotiq2F85:
 
     # --- actuation --------------------------------------------------------------------------------------------
 
-    def command_close(self, force: float | None = None) -> None:
+    def command_close(self) -> None:
         """Velocity control of both slides towards closed with the grip force as the force limit: each pad squeezes
-        whatever is between them with `force` (N; None: `grip_force`) until the next `set_travel`."""
+        whatever is between them with `grip_force` (until the next `set_travel`)."""
         self._closing = True
-        self._force = self.settings.grip_force if force is None else float(force)
         self.world.client.setJointMotorControlArray(
             self.body, list(self.slides), pybullet.VELOCITY_CONTROL, targetVelocities=[self.settings.closing_speed] * 2,
-            forces=[self._force] * 2,
+            forces=[self.settings.grip_force] * 2,
         )
 
-    def close_until_stall(self, on_step=None, max_steps: int = 240, force: float | None = None) -> int:
-        """Close with `force` (N; None: `grip_force`) until both fingers stall (contact) or the gripper is shut;
-        returns the number of physics steps."""
-        self.command_close(force)
+    def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
+        """Close until both fingers stall (contact) or the gripper is shut; returns the number of physics steps."""
+        self.command_close()
         history: list[tuple[float, float]] = []
         window = self.settings.stall_steps
         shut = self.max_travel - 0.0005

@@ -60,9 +60,6 @@ def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, 
     for r in side:
         assert r.method == "oracle" and r.detector == "ground-truth"
         assert r.executed and r.contacts_on_part and r.touched_on_part
-        # the cell closes with the grip force the plan asked for: each pad squeezes with it
-        assert 100.0 <= r.grip_force <= 235.0
-        assert r.outcome["contact_force"] == pytest.approx(2 * r.grip_force, rel=0.1)
         assert r.lift_height > 0.15  # held while lifting (`lifted` also needs 18 cm: slips of ~2 cm happen)
         assert len(r.T_world_grasp) == 4 and len(r.quaternion_xyzw) == 4
     assert sum(r.success for r in side) >= 2

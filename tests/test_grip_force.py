@@ -100,22 +100,3 @@ def test_each_pad_squeezes_with_the_grip_force_setting(force):
     """Issue 12: the linkage's fingers stopped near 100 N whatever the setting at 100 solver iterations; the fingers
     on slides deliver it."""
     assert _squeeze(force) == pytest.approx(2 * force, rel=0.05)
-
-
-def test_a_grasp_closes_the_twin_with_the_force_it_asks_for(tmp_path):
-    from sim.cell import SimCell
-    from sim.primitives import primitive_object, top_down_grasp
-
-    box = primitive_object("box", (0.03, 0.05, 0.06), tmp_path, mass=0.2)
-    with SimCell([box], embodiment="floating", seed=0, image_size=(64, 48)) as cell:
-        squeezes = {}
-        for force in (None, 200.0):
-            cell.reset(seed=1)
-            _, T_world_obj = cell.object_mesh()
-            outcome = cell.execute(top_down_grasp(T_world_obj, 0.04), 0.03, force=force)
-            assert outcome.lifted, outcome.message
-            squeezes[force] = outcome.contact_force  # both pads' normal force during the hold
-        assert squeezes[None] == pytest.approx(2 * DEFAULT_GRIP_FORCE, rel=0.05)
-        assert squeezes[200.0] == pytest.approx(2 * 200.0, rel=0.05)
-        with pytest.raises(ValueError, match="grip force"):
-            cell.execute(top_down_grasp(T_world_obj, 0.04), 0.03, force=300.0)

@@ -121,18 +121,6 @@ def test_successful_grasp_lifts_holds_puts_back_and_backs_off(rig):
     assert sets[-1].startswith(f"SET POS {opening} ")  # released
 
 
-
-@pytest.mark.parametrize("asked, sent", [(80.0, 80.0), (235.0, 100.0)])
-def test_a_grasp_closes_with_the_force_it_asks_for_within_the_cells_limit(rig, asked, sent):
-    assert rig.config.limits.max_grip_force == 100.0  # the example cell.yaml's safety limit
-    rig.cell.reset()
-    outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05, force=asked)
-    assert outcome.lifted and outcome.contact_force == pytest.approx(sent)
-    close = [line for line in rig.server.lines if line.startswith("SET POS 255 ")][-1]
-    assert f"FOR {rig.cell.gripper.force_to_register(sent)}" in close
-    with pytest.raises(ValueError, match="grip force"):
-        rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05, force=400.0)
-
 def test_reset_after_a_grasp_retracts_straight_up_before_going_home(rig):
     rig.cell.reset()
     rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)

@@ -88,7 +88,7 @@ class StillCell:
     def object_mesh(self):
         return self.mesh, np.eye(4)
 
-    def execute(self, T_world_grasp, width, force=None) -> GraspOutcome:
+    def execute(self, T_world_grasp, width) -> GraspOutcome:
         self.executed += 1
         return GraspOutcome(True, False, 0.0)
 

@@ -16,9 +16,8 @@
    between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
 7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
    cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
-   grasp axis after lifting. Each grasp asks for the grip force whose torsional friction holds that torque
-   `torque_safety` times over (at least the cell's setting `grip_force`, at most `max_grip_force`); a grasp whose
-   torque exceeds what the pads hold at `max_grip_force` (`torsion_limit`) ranks after every grasp that holds.
+   grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
+   (`torsion_limit`) ranks after every grasp that holds.
 8. Score = weighted sum of antipodality, closeness of the grasp to the centre of mass, when a table plane is
    given how much the approach points down onto the table (top-down grasps reach and lift best) minus the
    gravity torque as a fraction of the limit, minus a little for contacts away from the pad centres.
@@ -32,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
+from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 
 LOG = logging.getLogger(__name__)
@@ -69,16 +68,13 @@ class AntipodalConfig:
     # a level pose (`_level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
     # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
     level_facing_deg: float = 18.0
-    # gravity torque: the object's assumed mass (kg) when none is given, the cell's grip force setting (N: the least
-    # a grasp asks for), the most a grasp may ask for, and the effective radius (m) of the pads' torsional friction:
-    # at force F they hold 2 * mu * F * radius, the radius being the mean contact radius of the narrowest patch a
-    # 22 mm pad makes (a line across its width: 22 mm / 4, as the twin's pads, sim/gripper.py
-    # PAD_SPINNING_FRICTION); a grasp asks for `torque_safety` times the force that just holds its torque
+    # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
+    # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
+    # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
+    # twin's pads, sim/gripper.py PAD_SPINNING_FRICTION)
     default_mass: float = 0.3
     grip_force: float = DEFAULT_GRIP_FORCE
-    max_grip_force: float = GRIP_FORCE_RANGE[1]
     torsion_radius: float = 0.0055
-    torque_safety: float = 1.5
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
@@ -91,21 +87,13 @@ class AntipodalConfig:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
         if self.n_surface_samples < 1 or self.n_approaches < 1:
             raise ValueError("n_surface_samples and n_approaches must be at least 1")
-        if not self.grip_force <= self.max_grip_force:
-            raise ValueError(f"grip_force ({self.grip_force} N) must not exceed max_grip_force ({self.max_grip_force} N)")
         if not self.contact_depths or max(abs(d) for d in self.contact_depths) >= self.pad_half_length:
             raise ValueError(f"contact_depths must lie on the pad (|d| < {self.pad_half_length}), got {self.contact_depths}")
 
     @property
     def torsion_limit(self) -> float:
-        """Gravity torque (N m) about the grasp axis the pads' friction holds at `max_grip_force`."""
-        return 2.0 * self.friction_coefficient * self.max_grip_force * self.torsion_radius
-
-    def grip_forces(self, torque: np.ndarray) -> np.ndarray:
-        """The grip force (N) each grasp asks for: `torque_safety` times what holds its gravity `torque` (N m),
-        within `grip_force`..`max_grip_force`."""
-        holding = np.asarray(torque, dtype=np.float64) / (2.0 * self.friction_coefficient * self.torsion_radius)
-        return np.clip(self.torque_safety * holding, self.grip_force, self.max_grip_force)
+        """Gravity torque (N m) about the grasp axis the pads' friction holds."""
+        return 2.0 * self.friction_coefficient * self.grip_force * self.torsion_radius
 
 
 class AntipodalSampler:
@@ -172,11 +160,8 @@ class AntipodalSampler:
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
             return GraspSet.empty()
-        torque = None if plane is None else gravity_torque(
-            poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
-        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, torque)
-        forces = np.full(len(poses), cfg.grip_force) if torque is None else cfg.grip_forces(torque)
-        grasps = GraspSet(poses, widths, score, contacts, forces).sorted_by_score()
+        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass)
+        grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
         if cfg.max_grasps is not None:
             grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
         LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(axis_poses), len(grasps))
@@ -225,7 +210,7 @@ class AntipodalSampler:
 
     def _score(
         self, mesh: trimesh.Trimesh, poses: np.ndarray, com: np.ndarray, antipodality: np.ndarray,
-        contact_depth: np.ndarray, plane: np.ndarray | None, torque: np.ndarray | None,
+        contact_depth: np.ndarray, plane: np.ndarray | None, mass: float | None,
     ) -> np.ndarray:
         """Grasp score: antipodality, closeness to the centre of mass, shallow contact depth, a top-down approach, and
         a gravity torque the pads can hold (grasps whose torque exceeds the limit rank after all others)."""
@@ -236,6 +221,7 @@ class AntipodalSampler:
         score -= cfg.weight_contact_depth * np.abs(contact_depth) / max(np.abs(cfg.contact_depths).max(), 1e-9)
         if plane is not None:
             score += cfg.weight_top_down * np.clip(-(poses[:, :3, 2] @ plane[:3]), 0.0, 1.0)
+            torque = gravity_torque(poses, com, plane[:3], cfg.default_mass if mass is None else float(mass))
             score -= cfg.weight_torque * np.minimum(torque / cfg.torsion_limit, 1.0)
             score -= 2.0 * (torque > cfg.torsion_limit)  # ranks after every grasp whose torque the pads hold
         return score

@@ -65,14 +65,12 @@ ROBOTIQ_2F85 = GripperGeometry()
 @dataclass
 class GraspSet:
     """N grasps of one object: `poses` (N, 4, 4) T_frame_grasp, `widths` (N,) contact distance in metres,
-    `scores` (N,) higher is better, `contacts` (N, 2, 3) the two finger contact points (same frame as `poses`),
-    `forces` (N,) the grip force (N) each grasp asks for; NaN (the default) leaves it to the cell's setting."""
+    `scores` (N,) higher is better, `contacts` (N, 2, 3) the two finger contact points (same frame as `poses`)."""
 
     poses: np.ndarray
     widths: np.ndarray
     scores: np.ndarray
     contacts: np.ndarray
-    forces: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.poses = np.asarray(self.poses, dtype=np.float64).reshape(-1, 4, 4)
@@ -80,12 +78,10 @@ class GraspSet:
         self.widths = np.asarray(self.widths, dtype=np.float64).reshape(-1)
         self.scores = np.asarray(self.scores, dtype=np.float64).reshape(-1)
         self.contacts = np.asarray(self.contacts, dtype=np.float64).reshape(-1, 2, 3)
-        forces = np.full(n, np.nan) if self.forces is None else self.forces
-        self.forces = np.asarray(forces, dtype=np.float64).reshape(-1)
-        if not (len(self.widths) == len(self.scores) == len(self.contacts) == len(self.forces) == n):
+        if not (len(self.widths) == len(self.scores) == len(self.contacts) == n):
             raise ValueError(
                 f"GraspSet arrays disagree in length: {n} poses, {len(self.widths)} widths, "
-                f"{len(self.scores)} scores, {len(self.contacts)} contact pairs, {len(self.forces)} forces"
+                f"{len(self.scores)} scores, {len(self.contacts)} contact pairs"
             )
 
     @classmethod
@@ -95,16 +91,10 @@ class GraspSet:
     def __len__(self) -> int:
         return int(len(self.poses))
 
-    def force(self, index: int = 0) -> float | None:
-        """The grip force (N) grasp `index` asks for; None when it leaves it to the cell's setting."""
-        value = float(self.forces[index])
-        return value if np.isfinite(value) else None
-
     def subset(self, index: np.ndarray) -> "GraspSet":
         """The grasps at `index` (integer indices or a boolean mask), in that order."""
         index = np.asarray(index)
-        return GraspSet(self.poses[index], self.widths[index], self.scores[index], self.contacts[index],
-                        self.forces[index])
+        return GraspSet(self.poses[index], self.widths[index], self.scores[index], self.contacts[index])
 
     def sorted_by_score(self) -> "GraspSet":
         """Best first; ties keep their generation order (stable sort)."""
@@ -116,7 +106,7 @@ class GraspSet:
         if T.shape != (4, 4):
             raise ValueError(f"expected a 4x4 transform, got shape {T.shape}")
         contacts = self.contacts @ T[:3, :3].T + T[:3, 3]
-        return GraspSet(T @ self.poses, self.widths.copy(), self.scores.copy(), contacts, self.forces.copy())
+        return GraspSet(T @ self.poses, self.widths.copy(), self.scores.copy(), contacts)
 
 
 @runtime_checkable

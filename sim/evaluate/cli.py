@@ -65,10 +65,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "slots per method and object to OUT/strips/")
     parser.add_argument("--grip-force", type=float, default=None, metavar="N",
                         help=f"twin only: the gripper's force in N, {GRIP_FORCE_RANGE[0]:g}-{GRIP_FORCE_RANGE[1]:g} like the "
-                        f"2F-85 (default {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force): the least a "
-                        f"grasp closes with; a grasp whose gravity torque needs more asks for up to "
-                        f"{GRIP_FORCE_RANGE[1]:g} N. A real cell grips with its cell.yaml's gripper.force, up to its "
-                        "limits.max_grip_force")
+                        f"2F-85 (default {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
+                        "sampler's torsion limit follows it. A real cell grips with its cell.yaml's gripper.force")
     parser.add_argument("-v", "--verbose", action="store_true")
     args = parser.parse_args(argv)
     args.embodiment_given = any(a == "--embodiment" or a.startswith("--embodiment=") for a in (argv or sys.argv[1:]))

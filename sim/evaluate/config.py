@@ -47,7 +47,7 @@ class RunConfig:
     quick: bool = False
     prompts: list[str] = field(default_factory=list)
     record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
-    grip_force: float = DEFAULT_GRIP_FORCE  # N: the twin gripper's setting, the least a grasp asks for (twin only)
+    grip_force: float = DEFAULT_GRIP_FORCE  # N: the twin gripper's force and the sampler's torsion limit (twin only)
     twin_gripper: str = TWIN_GRIPPER  # the twin's gripper model ("" on the real cell)
 
     @property

@@ -194,7 +194,7 @@ def run_object(
     )
     episode = Episode(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
-        generator=AntipodalSampler(sampler_config(config, cell)),
+        generator=AntipodalSampler(AntipodalConfig(grip_force=config.grip_force)),
         vote_cache=VoteCache(out / "cache" / context.object_id),
         outcome_cache=_reusable_outcomes(recorded.trials, config),
     )
@@ -223,19 +223,11 @@ def run_object(
     return n_new
 
 
-def sampler_config(config: RunConfig, cell: Cell) -> AntipodalConfig:
-    """The grasp sampler's grip forces: the twin's setting (`--grip-force`) up to the 2F-85's maximum, or the real
-    cell's `gripper.force` up to its `limits.max_grip_force`."""
-    if config.backend == "real":
-        return AntipodalConfig(grip_force=cell.config.gripper.force, max_grip_force=cell.config.limits.max_grip_force)
-    return AntipodalConfig(grip_force=config.grip_force)
-
-
 def _runs_the_cell(episode: Episode, slot: Slot) -> bool:
     """Whether executing `slot` moves the cell: it has a grasp whose outcome is not reused from the cache."""
     if slot.grasp is None:
         return False
-    key = grasp_key(slot.grasp.poses[0], float(slot.grasp.widths[0]), slot.grasp.force(0))
+    key = grasp_key(slot.grasp.poses[0], float(slot.grasp.widths[0]))
     return episode.outcome_cache is None or key not in episode.outcome_cache
 
 
@@ -253,8 +245,7 @@ def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
     outcomes = {}
     for record in existing:
         if record["executed"] and not record["reused_outcome"]:
-            key = grasp_key(np.array(record["T_world_grasp"]), record["width"], record.get("grip_force"))
-            outcomes[key] = outcome_from(record)
+            outcomes[grasp_key(np.array(record["T_world_grasp"]), record["width"])] = outcome_from(record)
     return outcomes
 
 
