@@ -310,8 +310,6 @@ class GraspPrimitive:
         self.robot.follow(paths[1], s.approach_speed)
         moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
-        if self.world.physics.grasp_iterations is not None:  # squeeze, lift and hold with a converged friction
-            self.world.set_solver_iterations(max(self.world.solver_iterations, self.world.physics.grasp_iterations))
         self.gripper.close_until_stall()
         self._snap("closed")
         touched = self._pad_contacts()

@@ -42,9 +42,8 @@ class PhysicsSettings:
     The solver must converge on the gripper's fingers squeezed by its motor: with 50 iterations and PyBullet's
     default contact ERP the pads sank millimetres into what they held. 100 iterations with a contact ERP of 0.8
     (penetration corrected within a few steps) keep them on the surface and deliver the grip force
-    (`tests/test_sim_gripper.py`, with the fingertips on slides: `sim.gripper`); the pads' friction on a held
-    object needs `grasp_iterations` (the grasp primitive switches at the close). `contact_erp=None` keeps
-    PyBullet's default.
+    (`tests/test_sim_gripper.py`, with the fingertips on slides: `sim.gripper`). `contact_erp=None` keeps PyBullet's
+    default.
     """
 
     time_step: float = 1.0 / 240.0
@@ -54,9 +53,6 @@ class PhysicsSettings:
     # fingers at 100 iterations (a 20 g toothbrush falls during the lift) and needs `light_object_iterations`
     light_object_mass: float = 0.05
     light_object_iterations: int | None = 300
-    # from the close to the end of the trial: at 100 iterations the pads' friction is not converged and held objects
-    # turn in the fingers (a kettle by its handle, a pan by its rim) that a converged solve holds (None: keep)
-    grasp_iterations: int | None = 300
     gravity: float = -9.81
 
 
