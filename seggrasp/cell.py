@@ -28,10 +28,11 @@ class Frame:
 #: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting, shared by the twin
 #: (`sim.gripper.GripperSettings`; a twin run sets another with `python -m sim.evaluate --grip-force N`), the grasp
 #: sampler's torque limit and the real cell (hardware/cell.example.yaml `gripper.force`, at the example's
-#: `limits.max_grip_force`; hardware/config.py's default). At 40 N mug, knife and hammer handles turn in the fingers
-#: under their own weight; why the default stays at 100 N: docs/results/twin-physics.md, fourth round.
+#: `limits.max_grip_force`; hardware/config.py's default). The default is the 2F-85's full force: pans, kettles and
+#: hammers held by their handles turn in the fingers under their own weight at 100 N (docs/results/twin-physics.md,
+#: fifth round); lower it in cell.yaml for fragile objects.
 GRIP_FORCE_RANGE = (20.0, 235.0)
-DEFAULT_GRIP_FORCE = 100.0
+DEFAULT_GRIP_FORCE = 235.0
 
 # Success as a lab judges it, the same on both backends: the grasped point rises at least LIFT_SUCCESS (m; the
 # lift is 20 cm) and the object moves less than MAX_SLIP (m) and MAX_ROTATION_DEG in the fingers from the close to

@@ -131,7 +131,7 @@ def _hammer() -> tuple[trimesh.Trimesh, np.ndarray, float]:
 
 def test_hammer_grasp_holds_against_the_heavy_head() -> None:
     mesh, com, mass = _hammer()
-    config = AntipodalConfig(friction_coefficient=MU)
+    config = AntipodalConfig(friction_coefficient=MU, grip_force=100.0)
     sampler = AntipodalSampler(config)
     torque = lambda g: gravity_torque(g.poses[:1], com, TABLE[:3], mass)[0]  # noqa: E731
     best = sampler.generate(mesh, seed=2, table_plane=TABLE, center_of_mass=com, mass=mass)

@@ -53,15 +53,15 @@ def test_the_grip_force_option_is_refused_for_the_real_cell(capsys):
 
 def test_a_run_records_its_grip_force_and_its_twin_grips_with_it(tmp_path):
     config = build_config(parse_args(["--methods", "oracle", "--objects", "mug_classic", "--embodiment", "floating",
-                                      "--grip-force", str(GRIP_FORCE_RANGE[1])]))
-    assert config.grip_force == GRIP_FORCE_RANGE[1]
+                                      "--grip-force", "150"]))
+    assert config.grip_force == 150.0
     prepare_out(tmp_path, config, resume=False)
-    assert json.loads((tmp_path / "run.json").read_text())["grip_force"] == GRIP_FORCE_RANGE[1]
+    assert json.loads((tmp_path / "run.json").read_text())["grip_force"] == 150.0
     with pytest.raises(ValueError, match="grip_force"):  # resuming at another force is refused
         prepare_out(tmp_path, RunConfig(**dict(vars(config), grip_force=DEFAULT_GRIP_FORCE)), resume=True)
     try:
         cell = _get_cell(config.at_seed(0), load_asset("mug_classic"))
-        assert cell.robot.gripper.settings.grip_force == GRIP_FORCE_RANGE[1]
+        assert cell.robot.gripper.settings.grip_force == 150.0
     finally:
         close_cell()
 

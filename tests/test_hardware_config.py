@@ -44,7 +44,7 @@ def mutate(tmp_path, change) -> ConfigError:
     (lambda d: d["gripper"].update(port=70000), "gripper.port", "must be in [1, 65535]"),
     (lambda d: d["gripper"].update(closed_register=2), "gripper.closed_register", "greater than"),
     (lambda d: d["gripper"].update(stroke=85), "gripper.stroke", "metres"),
-    (lambda d: d["gripper"].update(force=150.0), "gripper.force", "exceeds limits.max_grip_force"),
+    (lambda d: d["limits"].update(max_grip_force=80.0), "gripper.force", "exceeds limits.max_grip_force"),
     (lambda d: d["limits"].update(max_tool_speed=-1), "limits.max_tool_speed", "positive number, got -1"),
     (lambda d: d["limits"].update(max_tool_speed="fast"), "limits.max_tool_speed", "finite number"),
     (lambda d: d["limits"].update(max_tool_speed=2.0), "limits.max_tool_speed", "above the 1 m/s"),

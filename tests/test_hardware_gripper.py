@@ -127,8 +127,11 @@ def test_moving_before_activation_is_a_clear_fault(cell_config):
     (dict(speed=0.5), "finger speed 0.5 m/s is outside the 2F-85's range"),  # used to be clipped to 0.15 m/s
 ])
 def test_force_and_speed_out_of_range_are_refused_before_sending(cell_config, command, problem):
+    # a lab's safety limit, and the force it grips with
+    limited = replace(cell_config, gripper=replace(cell_config.gripper, force=100.0),
+                      limits=replace(cell_config.limits, max_grip_force=100.0))
     with FakeRobotiqServer() as server:
-        gripper = make_gripper(cell_config, server)
+        gripper = make_gripper(limited, server)
         gripper.activate()
         before = list(server.lines)
         with pytest.raises(SafetyError, match=problem):
