@@ -58,7 +58,7 @@ MAX_WIDTH = 0.085
 #: 15 g fingertip; with only the linkage's 58 g on the slide the solver (100 iterations) delivered about 130 N of a
 #: 235 N setting, with 0.5 kg all of it. Its weight is cancelled every step (`Robotiq2F85._carry_drives`).
 CARRIAGE_MASS = 0.5
-#: Force limit (N) of the constraint that makes both slides travel together.
+#: Force limit (N) and error reduction of the constraint that makes both slides travel together.
 COUPLING_FORCE = 10000.0
 COUPLING_ERP = 0.5
 #: While closing, each slide's velocity target is corrected by this gain (1/s) times the other slide's lead, so
@@ -312,7 +312,8 @@ class Robotiq2F85:
         return float(np.interp(travel, travels, lifts)), float(np.interp(travel, travels, ARC_ANGLES))
 
     def _servo_followers(self) -> None:
-        """Before every physics step, drive each side's lift and knuckles to the arc of its slide's travel."""
+        """Before every physics step, drive each side's lift and knuckles to the arc of its slide's travel and,
+        while closing, both slides towards closed (centred: `CENTRING_GAIN`)."""
         c = self.world.client
         targets, forces = [], []
         for side, (slide, lift, knuckles) in enumerate(zip(self.slides, self.lifts, self.knuckles)):
@@ -378,13 +379,9 @@ class Robotiq2F85:
     # --- actuation --------------------------------------------------------------------------------------------
 
     def command_close(self) -> None:
-        """Velocity control of both slides towards closed with the grip force as the force limit: each pad squeezes
-        whatever is between them with `grip_force` (until the next `set_travel`)."""
+        """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
+        with the grip force as the force limit (`_servo_followers`): each pad squeezes with `grip_force`."""
         self._closing = True
-        self.world.client.setJointMotorControlArray(
-            self.body, list(self.slides), pybullet.VELOCITY_CONTROL, targetVelocities=[self.settings.closing_speed] * 2,
-            forces=[self.settings.grip_force] * 2,
-        )
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
         """Close until both fingers stall (contact) or the gripper is shut; returns the number of physics steps."""

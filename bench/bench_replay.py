@@ -1,0 +1,104 @@
+"""Replay the executed grasps of an evaluation run in the twin under other solver iterations and grip forces.
+
+    python bench/bench_replay.py --run DIR --objects kettle_gooseneck,frying_pan_crepe --prompt handle \
+        --settings 100:100,300:100,100:235 [--seed 0] [--limit 8] [--out docs/results/replay.md]
+
+Each grasp is re-executed in its recorded scene (`scene_seed`) with the recorded pose and width; a setting is
+`ITERATIONS:FORCE` (solver iterations for the whole trial, grip force in N). The table counts the trials that
+lifted and names the failures of the others, so that what a converged solve holds can be told from what the
+twin's default settings drop. The lines printed are also written to `--out` (atomically).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+from seggrasp.io import atomic_write_text
+from seggrasp.objects import load_asset_set
+from sim.cell import SimCell
+from sim.gripper import GripperSettings
+from sim.world import PhysicsSettings
+
+
+def parse_setting(text: str) -> tuple[int, float]:
+    """'ITERATIONS:FORCE' -> (iterations, force in N)."""
+    try:
+        iterations, force = text.split(":")
+        return int(iterations), float(force)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"a setting is ITERATIONS:FORCE (e.g. 300:100), got {text!r}") from None
+
+
+def recorded_grasps(run: Path, object_id: str, prompt: str, seed: int, limit: int) -> list[dict]:
+    """The first `limit` executed trials of `object_id` / `prompt` at `seed` in a run's trials.jsonl."""
+    rows = []
+    with open(run / "trials.jsonl") as handle:
+        for line in handle:
+            record = json.loads(line)
+            if (record["object_id"], record["prompt"], record["seed"]) == (object_id, prompt, seed) and record["executed"]:
+                rows.append(record)
+    return sorted(rows, key=lambda r: (r["method"], r["rank"]))[:limit]
+
+
+def replay(model, rows: list[dict], iterations: int, force: float) -> tuple[collections.Counter, float]:
+    """Outcomes (failure name, "lifted" for success) of the recorded grasps and the median wall time of a trial."""
+    outcomes, times = collections.Counter(), []
+    physics = PhysicsSettings(solver_iterations=iterations, light_object_iterations=None)
+    with SimCell([model], embodiment="arm", seed=0, image_size=(64, 48), physics=physics,
+                 gripper=GripperSettings(force)) as cell:
+        for row in rows:
+            cell.reset(seed=row["scene_seed"], object_id=model.object_id)
+            start = time.perf_counter()
+            outcome = cell.execute(np.array(row["T_world_grasp"]), row["width"])
+            times.append(time.perf_counter() - start)
+            outcomes[outcome.failure or "lifted"] += 1
+    return outcomes, float(np.median(times))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--run", type=Path, required=True, help="an evaluation output folder (trials.jsonl)")
+    parser.add_argument("--objects", required=True, help="comma-separated twin object ids")
+    parser.add_argument("--prompt", required=True, help="the part name whose grasps are replayed")
+    parser.add_argument("--settings", required=True, type=lambda s: [parse_setting(t) for t in s.split(",")],
+                        help="comma-separated ITERATIONS:FORCE")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--limit", type=int, default=8, help="grasps per object")
+    parser.add_argument("--out", type=Path, default=None)
+    args = parser.parse_args()
+    if not (args.run / "trials.jsonl").is_file():
+        parser.error(f"--run {args.run}: no trials.jsonl there")
+    models = {o.object_id: o for o in load_asset_set()}
+    unknown = [o for o in args.objects.split(",") if o not in models]
+    if unknown:
+        parser.error(f"unknown object id(s) {unknown}")
+    logging.basicConfig(level=logging.WARNING)
+    lines = ["| object | grasps | iterations | force (N) | lifted | failures | trial (s, median) |",
+             "|---|---|---|---|---|---|---|"]
+    print("\n".join(lines), flush=True)
+    for object_id in args.objects.split(","):
+        rows = recorded_grasps(args.run, object_id, args.prompt, args.seed, args.limit)
+        if not rows:
+            parser.error(f"no executed {object_id} / {args.prompt} trial at seed {args.seed} in {args.run}")
+        for iterations, force in args.settings:
+            outcomes, trial_s = replay(models[object_id], rows, iterations, force)
+            failures = ", ".join(f"{name} {n}" for name, n in sorted(outcomes.items()) if name != "lifted") or "-"
+            lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {outcomes['lifted']} | {failures} "
+                         f"| {trial_s:.2f} |")
+            print(lines[-1], flush=True)
+    if args.out is not None:
+        command = (f"python bench/bench_replay.py --run {args.run} --objects {args.objects} --prompt {args.prompt} "
+                   f"--settings {','.join(f'{i}:{f:g}' for i, f in args.settings)} --seed {args.seed} "
+                   f"--limit {args.limit}")
+        atomic_write_text(args.out, f"# bench_replay\n\n```\n$ {command}\n```\n\n" + "\n".join(lines) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,30 @@
+"""bench/bench_replay.py picks a run's executed grasps of one object and prompt, and reads its settings."""
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+bench_replay = pytest.importorskip("bench_replay")
+
+
+def test_settings_are_iterations_and_force():
+    assert bench_replay.parse_setting("300:100") == (300, 100.0)
+    with pytest.raises(argparse.ArgumentTypeError, match="ITERATIONS:FORCE"):
+        bench_replay.parse_setting("300")
+
+
+def test_the_executed_grasps_of_one_object_prompt_and_seed_are_replayed_in_rank_order(tmp_path):
+    def trial(rank, **changes):
+        return dict(dict(object_id="mug_classic", prompt="handle", seed=0, executed=True, method="oracle", rank=rank,
+                         scene_seed=7, T_world_grasp=[[1, 0, 0, 0]] * 4, width=0.02), **changes)
+
+    rows = [trial(2), trial(0), trial(1, executed=False), trial(3, prompt="body"), trial(4, seed=1),
+            trial(5, object_id="mug_tall"), trial(1)]
+    (tmp_path / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    picked = bench_replay.recorded_grasps(tmp_path, "mug_classic", "handle", 0, limit=2)
+    assert [r["rank"] for r in picked] == [0, 1]
+    assert len(bench_replay.recorded_grasps(tmp_path, "mug_classic", "handle", 0, limit=10)) == 3
