@@ -85,11 +85,15 @@ def test_a_folder_written_before_seeds_resumes_as_its_one_seed(tmp_path) -> None
     (out / "run.json").write_text(json.dumps(old))
     record = {"object_id": "mug_classic", "method": "oracle", "prompt": "handle", "rank": 0}
     assert trial_key(record) == ("mug_classic", 0, "oracle", "handle", 0)
-    config = prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[0], top_k=1), resume=True)
+    # it simulated the twin as it then was: the 2F-85's linkage at 100 N
+    then = dict(grip_force=100.0, twin_gripper="linkage")
+    config = prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[0], top_k=1, **then), resume=True)
     assert config.seeds == [0]
+    with pytest.raises(ValueError, match="twin_gripper"):  # today's twin does not continue it
+        prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[0], top_k=1), resume=True)
     (out / "run.json").write_text(json.dumps(dict(old, seed=1)))  # decomposed with CoACD seed 1: not the same run
     with pytest.raises(ValueError, match="decomposition_seed"):
-        prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[1], top_k=1), resume=True)
+        prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[1], top_k=1, **then), resume=True)
 
 
 def test_resume_skips_the_object_seed_pairs_the_folder_holds_completely(tmp_path) -> None:

@@ -5,6 +5,7 @@ import pytest
 
 from seggrasp.cell import Cell
 from sim.cell import GraspPrimitive, SimCell
+from sim.gripper import GripperSettings
 from sim.robot import HOME_Q
 from sim.primitives import primitive_object, top_down_grasp
 
@@ -188,7 +189,7 @@ def test_a_bar_held_off_its_centre_of_mass_turns_only_beyond_the_pads_torsional_
     # 2 x 100 N x (0.5 x PAD_SPINNING_FRICTION + the bar's own 1 mm) = 0.75 N m of twist; 0.5 kg pulls 0.59 N m
     # (held; point contacts alone turned it 50 deg), 0.9 kg pulls 1.06 N m (turns)
     bar = primitive_object("box", (0.30, 0.03, 0.03), tmp_path, mass=mass, friction=0.5, object_id="bar")
-    with SimCell([bar], embodiment="arm", seed=0, image_size=IMAGE) as cell:
+    with SimCell([bar], embodiment="arm", seed=0, image_size=IMAGE, gripper=GripperSettings(100.0)) as cell:
         _, T_world_obj = cell.object_mesh()
         T = top_down_grasp(T_world_obj, 0.027)  # the pads end 8 mm above the table
         T[:3, 0] = T_world_obj[:3, 1]  # close across the bar (its y axis)
