@@ -56,7 +56,7 @@ MAX_WIDTH = 0.085
 #: Mass (kg) of each slide's carriage: the finger drive's effective mass. The 2F-85's motor drives the fingers
 #: through a self-locking gear, so a contact impulse meets the rotor's inertia times the squared gear ratio, not a
 #: 15 g fingertip; with only the linkage's 58 g on the slide the solver (100 iterations) delivered about 130 N of a
-#: 235 N setting, with 0.5 kg all of it. Its weight is cancelled every step (`Robotiq2F85._carry_drives`).
+#: 235 N setting, with 0.5 kg all of it. Its weight is cancelled every step (`Robotiq2F85._drive_fingers`).
 CARRIAGE_MASS = 0.5
 #: Force limit (N) and error reduction of the constraint that makes both slides travel together.
 COUPLING_FORCE = 10000.0
@@ -245,7 +245,7 @@ class Robotiq2F85:
                                       [0, 0, 0], [0, 0, 0])
         # one motor drives both fingers: the slides move together (PyBullet's gear: travel_left = travel_right)
         c.changeConstraint(coupling, gearRatio=-1, maxForce=COUPLING_FORCE, erp=COUPLING_ERP)
-        world.pre_step_hooks += [self._servo_followers, self._carry_drives]
+        world.pre_step_hooks.append(self._drive_fingers)
         for link in (link for side in self.fingertip_links for link in side):
             c.changeDynamics(
                 body, link, lateralFriction=PAD_FRICTION, spinningFriction=PAD_SPINNING_FRICTION,
@@ -311,13 +311,15 @@ class Robotiq2F85:
         travels, lifts = self.arcs[side]
         return float(np.interp(travel, travels, lifts)), float(np.interp(travel, travels, ARC_ANGLES))
 
-    def _servo_followers(self) -> None:
-        """Before every physics step, drive each side's lift and knuckles to the arc of its slide's travel and,
-        while closing, both slides towards closed (centred: `CENTRING_GAIN`)."""
+    def _drive_fingers(self) -> None:
+        """Before every physics step: drive each side's lift and knuckles to the arc of its slide's travel, while
+        closing drive both slides towards closed (centred: `CENTRING_GAIN`), and cancel the carriages' weight
+        (`CARRIAGE_MASS`)."""
         c = self.world.client
+        travel = self.travel()
         targets, forces = [], []
-        for side, (slide, lift, knuckles) in enumerate(zip(self.slides, self.lifts, self.knuckles)):
-            height, angle = self._arc(side, c.getJointState(self.body, slide)[0])
+        for side, (lift, knuckles) in enumerate(zip(self.lifts, self.knuckles)):
+            height, angle = self._arc(side, travel[side])
             targets += [(lift, height), *((k, angle) for k in knuckles)]
             forces += [self.settings.lift_force] + [self.settings.follower_force] * len(knuckles)
         c.setJointMotorControlArray(
@@ -325,17 +327,12 @@ class Robotiq2F85:
             forces=forces,
         )
         if self._closing:
-            left, right = self.travel()
-            correction = CENTRING_GAIN * (right - left)
+            correction = CENTRING_GAIN * (travel[1] - travel[0])
             c.setJointMotorControlArray(
                 self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
                 targetVelocities=[self.settings.closing_speed + correction, self.settings.closing_speed - correction],
                 forces=[self.settings.grip_force] * 2,
             )
-
-    def _carry_drives(self) -> None:
-        """Cancel the carriages' weight before every physics step (`CARRIAGE_MASS`)."""
-        c = self.world.client
         for link in self.carriages:
             centre = c.getLinkState(self.body, link)[0]
             c.applyExternalForce(self.body, link, [0.0, 0.0, -CARRIAGE_MASS * self.world.physics.gravity], centre,
@@ -380,7 +377,7 @@ class Robotiq2F85:
 
     def command_close(self) -> None:
         """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
-        with the grip force as the force limit (`_servo_followers`): each pad squeezes with `grip_force`."""
+        with the grip force as the force limit (`_drive_fingers`): each pad squeezes with `grip_force`."""
         self._closing = True
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:

@@ -171,17 +171,9 @@ class World:
             body, -1, lateralFriction=float(model.friction), spinningFriction=0.001, rollingFriction=0.0001,
         )
         light = self.physics.light_object_iterations is not None and model.mass < self.physics.light_object_mass
-        self.set_solver_iterations(self.physics.light_object_iterations if light else self.physics.solver_iterations)
-        return body
-
-    @property
-    def solver_iterations(self) -> int:
-        """The solver iterations per step in force now."""
-        return int(self.client.getPhysicsEngineParameters()["numSolverIterations"])
-
-    def set_solver_iterations(self, iterations: int) -> None:
-        """Solve every following step with `iterations` solver iterations (until `reset` or the next object)."""
+        iterations = self.physics.light_object_iterations if light else self.physics.solver_iterations
         self.client.setPhysicsEngineParameter(numSolverIterations=int(iterations))
+        return body
 
     def body_pose(self, body: int) -> np.ndarray:
         """`T_world_link` of a body's base link frame (the URDF frame, not PyBullet's centre-of-mass frame)."""
