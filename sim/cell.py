@@ -6,8 +6,9 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
 
 1. plan: pre-grasp (10 cm back along the approach axis z), grasp, and lift (20 cm up) poses; for the arm every
    waypoint must pass the IK reachability check, no configuration on the way (free-space path to the pre-grasp,
-   approach, lift) may bring the robot closer to the table than `table_clearance`, and the free-space path may
-   not touch the object; otherwise the grasp is `reachable=False` and nothing moves;
+   approach, lift) may bring the robot closer to the table than `table_clearance` (the fingertips closer than
+   `fingertip_table_clearance`, which a pinch of a part lying flat needs), and the free-space path may not touch
+   the object; otherwise the grasp is `reachable=False` and nothing moves;
 2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
    speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
    finger stalls, lift, hold 1 s (once the squeeze splays the pads, solved with more iterations: `PhysicsSettings`);
@@ -68,6 +69,9 @@ class GraspSettings:
     max_slip: float = MAX_SLIP  # the grasped point may move this much relative to the gripper from close to hold
     max_rotation_deg: float = MAX_ROTATION_DEG  # and the object turn this much
     table_clearance: float = 0.003
+    # the fingertips (inner fingers and pads) may come this close: a fingertip pinch of a part lying flat
+    # (seggrasp.grasp.antipodal.AntipodalConfig.pinch_table_clearance) puts them 1.5 mm above the table
+    fingertip_table_clearance: float = 0.001
     settle_time: float = 1.0  # at most; settling stops once the object rests
 
 
@@ -373,17 +377,20 @@ class GraspPrimitive:
 
     def collision_on_path(self, transit: list, near_object: list, opening: float) -> str:
         """'' if the robot (gripper opened to `opening`) keeps `table_clearance` from the table on every
-        configuration and does not touch the object on the free-space `transit` (the `near_object` part -
-        approach and lift - may touch it); else the reason."""
+        configuration (its fingertips `fingertip_table_clearance`) and does not touch the object on the free-space
+        `transit` (the `near_object` part - approach and lift - may touch it); else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()
         links = set(links)
+        fingertips = {link for side in self.gripper.fingertip_links for link in side}
         self.gripper.set_width(opening)
         configs = transit + near_object
         for index, config in enumerate(configs):
             self.robot.place(config)
             for point in client.getClosestPoints(body, self.world.table_id, self.settings.table_clearance):
-                if point[3] in links:
+                if point[3] in links and (
+                    point[3] not in fingertips or point[8] < self.settings.fingertip_table_clearance
+                ):
                     name = client.getJointInfo(body, point[3])[12].decode() if point[3] >= 0 else "base"
                     return f"robot would touch the table ({name} at waypoint {index + 1} of {len(configs)})"
             if index < len(transit) and client.getClosestPoints(body, self.object_body, 0.0):

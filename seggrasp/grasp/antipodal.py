@@ -10,7 +10,10 @@
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
    from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
-   below an optional table plane.
+   below an optional table plane. A pose coming straight down onto the table (within `pinch_max_tilt_deg`) that
+   finds no such depth is tried once more as a fingertip pinch (`pinch_contact_depths`, the fingertips
+   `pinch_table_clearance` above the table): how a 2F-85 picks a part lying flat whose sides are lower than the
+   pads reach with the normal margins (scissors handles, eyeglass rims, toothbrush handles).
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
    between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
@@ -62,6 +65,18 @@ class AntipodalConfig:
     # contacts this far from the pad centres (m, + towards the fingertips), tried in this order (deepest first);
     # the 37.5 mm pads leave >= 6.75 mm to either end
     contact_depths: tuple[float, ...] = (-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012)
+    # fingertip pinch of a low part lying on the table, for straight-down poses that have no depth above: the
+    # contact 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top) and
+    # the fingertips this far above the table; the cell must allow its fingertips that close
+    # (sim.cell.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance)
+    pinch_contact_depths: tuple[float, ...] = (0.015, 0.0165)
+    pinch_table_clearance: float = 0.0015
+    pinch_max_tilt_deg: float = 10.0
+    # and the pads must touch the part's side over at least this much of their length (a pinch on the last
+    # millimetre of a blade lying flat does not hold), measured from the surface points within
+    # `pinch_band_tolerance` of each pad's first touch
+    pinch_min_band: float = 0.003
+    pinch_band_tolerance: float = 0.0015
     pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
     pad_half_length: float = 0.01875
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
@@ -87,8 +102,15 @@ class AntipodalConfig:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
         if self.n_surface_samples < 1 or self.n_approaches < 1:
             raise ValueError("n_surface_samples and n_approaches must be at least 1")
-        if not self.contact_depths or max(abs(d) for d in self.contact_depths) >= self.pad_half_length:
-            raise ValueError(f"contact_depths must lie on the pad (|d| < {self.pad_half_length}), got {self.contact_depths}")
+        for name in ("contact_depths", "pinch_contact_depths"):
+            depths = getattr(self, name)
+            if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
+                raise ValueError(f"{name} must lie on the pad (|d| < {self.pad_half_length}), got {depths}")
+
+    @property
+    def all_contact_depths(self) -> np.ndarray:
+        """The normal contact depths, then the pinch depths (the indices `_deepest_free_depths` returns)."""
+        return np.asarray(self.contact_depths + self.pinch_contact_depths, dtype=np.float64)
 
     @property
     def torsion_limit(self) -> float:
@@ -147,15 +169,24 @@ class AntipodalSampler:
         if not free.any():
             LOG.info("antipodal sampler: every candidate pose collides")
             return GraspSet.empty()
-        contact_depth = np.asarray(cfg.contact_depths, dtype=np.float64)[depth_index[free]]
+        contact_depth = cfg.all_contact_depths[depth_index[free]]
         poses = axis_poses[free].copy()
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
         widths, facing = self._apply_footprint(
             poses, contacts, widths[free].copy(), openings[free], cloud, cloud_normals, is_level[free]
         )
-        # the footprint may be wider than the stroke; a level pose must meet surface facing its pads
+        # the footprint may be wider than the stroke; a level pose must meet surface facing its pads; a pinch must
+        # touch the part over `pinch_min_band` of its pads
         fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~is_level[free])
+        pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
+        if len(pinch):
+            bands = np.concatenate([
+                _pad_bands(poses[chunk], openings[free][chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
+                           cfg.pinch_band_tolerance)
+                for chunk in np.array_split(pinch, max(1, len(pinch) // COLLISION_CHUNK))
+            ])
+            fits[pinch] = bands >= cfg.pinch_min_band
         poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
         contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
         if not len(poses):
@@ -191,17 +222,23 @@ class AntipodalSampler:
     def _deepest_free_depths(
         self, poses: np.ndarray, openings: np.ndarray, widths: np.ndarray, plane: np.ndarray | None, cloud: np.ndarray
     ) -> np.ndarray:
-        """Per pose, the index of the first contact depth (`config.contact_depths`, deepest first) at which the open
-        gripper clears the table and the object and the fingers behind the pads clear it when closed; -1 if none."""
+        """Per pose, the index (into `config.all_contact_depths`) of the first contact depth, deepest first, at
+        which the open gripper clears the table and the object and the fingers behind the pads clear it when closed;
+        then, for the straight-down poses still without one, the first pinch depth; -1 if none."""
         cfg = self.config
         depth_index = np.full(len(poses), -1)
-        for index, depth in enumerate(cfg.contact_depths):
-            todo = np.flatnonzero(depth_index < 0)
+        searches = [(cfg.contact_depths, cfg.table_clearance, np.ones(len(poses), dtype=bool))]
+        if plane is not None and cfg.pinch_contact_depths:
+            down = -(poses[:, :3, 2] @ plane[:3]) >= np.cos(np.deg2rad(cfg.pinch_max_tilt_deg))
+            searches.append((cfg.pinch_contact_depths, cfg.pinch_table_clearance, down))
+        candidates = [(d, clearance, allowed) for depths, clearance, allowed in searches for d in depths]
+        for index, (depth, clearance, allowed) in enumerate(candidates):
+            todo = np.flatnonzero((depth_index < 0) & allowed)
             shifted = poses[todo].copy()
             shifted[:, :3, 3] -= depth * shifted[:, :3, 2]
             free = np.ones(len(todo), dtype=bool)
             if plane is not None:
-                free &= self._above_plane(shifted, openings[todo], plane, cfg.table_clearance)
+                free &= self._above_plane(shifted, openings[todo], plane, clearance)
             free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
             # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
             free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
@@ -306,24 +343,47 @@ def _box_corners(boxes: np.ndarray) -> np.ndarray:
     return np.stack([boxes[:, pick[:, 0], 0], boxes[:, pick[:, 1], 1], boxes[:, pick[:, 2], 2]], axis=-1).reshape(-1, 3)
 
 
-def _sweep(
+def _swept_points(
     poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The cloud points the closing pads sweep (|y| <= half_width, z_low <= z <= z_high, |x| within half the
-    opening, gripper frame) per pose: (span along x, NaN if none; lowest and highest x; their cloud indices)."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cloud in each gripper frame, x and z (G, M), and which points the closing pads sweep (|y| <= half_width,
+    z_low <= z <= z_high, |x| within half the opening)."""
     rotations = poses[:, :3, :3]
     local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
     inside = (
         (np.abs(local[..., 1]) <= half_width) & (local[..., 2] >= z_low) & (local[..., 2] <= z_high)
         & (np.abs(local[..., 0]) <= 0.5 * openings[:, None])
     )
-    x = local[..., 0]
+    return local[..., 0], local[..., 2], inside
+
+
+def _sweep(
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cloud points the closing pads sweep per pose (`_swept_points`): (span along x, NaN if none; lowest and
+    highest x; their cloud indices)."""
+    x, _, inside = _swept_points(poses, openings, cloud, half_width, z_low, z_high)
     low = np.where(inside, x, np.inf).argmin(axis=1)
     high = np.where(inside, x, -np.inf).argmax(axis=1)
-    rows = np.arange(len(local))
+    rows = np.arange(len(x))
     x_low, x_high = x[rows, low], x[rows, high]
     span = np.where(inside.any(axis=1), x_high - x_low, np.nan)
     return span, x_low, x_high, low, high
+
+
+def _pad_bands(
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
+) -> np.ndarray:
+    """Per pose, how far along the pads (m) the surface they close on reaches: for each pad the extent along z of
+    the swept points within `tolerance` of its first touch, the smaller of the two (0 where nothing is swept)."""
+    x, z, inside = _swept_points(poses, openings, cloud, half_width, -half_length, half_length)
+    bands = []
+    for sign in (-1.0, 1.0):  # the -x pad touches the lowest x, the +x pad the highest
+        first = np.where(inside, sign * x, -np.inf).max(axis=1, keepdims=True)
+        touching = inside & (sign * x >= first - tolerance)
+        extent = np.where(touching, z, -np.inf).max(axis=1) - np.where(touching, z, np.inf).min(axis=1)
+        bands.append(np.where(touching.any(axis=1), extent, 0.0))
+    return np.minimum(*bands)
 
 
 def pad_contacts(
