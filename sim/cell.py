@@ -289,7 +289,8 @@ class GraspPrimitive:
         plan, start, reasons = None, self.robot.configuration(), []
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
-                reason = self.collision_on_path(transit, candidate[1] + candidate[2], opening)
+                # the fingers close at the grasp (the approach's last waypoint) and stay closed on the lift
+                reason = self.collision_on_path(transit, candidate[1], opening, candidate[1][-1:] + candidate[2], width)
                 if not reason:
                     plan = (transit, candidate)
                     break
@@ -375,22 +376,25 @@ class GraspPrimitive:
         if self.recorder is not None:
             self.recorder.snap(self.world.client, stage, self._T_world_tcp())
 
-    def collision_on_path(self, transit: list, near_object: list, opening: float) -> str:
-        """'' if the robot (gripper opened to `opening`) keeps `table_clearance` from the table on every
-        configuration (its fingertips `fingertip_table_clearance`) and does not touch the object on the free-space
-        `transit` (the `near_object` part - approach and lift - may touch it); else the reason."""
+    def collision_on_path(self, transit: list, approach: list, opening: float, closed: list = (),
+                          width: float = 0.0) -> str:
+        """'' if the robot keeps `table_clearance` from the table (its fingertips `fingertip_table_clearance`) on
+        every configuration - the free-space `transit` and the `approach` with the gripper opened to `opening`, the
+        `closed` ones (grasp and lift) with it closed to `width`, where the fingertips reach furthest along the
+        approach - and does not touch the object on the `transit` (the rest may touch it); else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()
         links = set(links)
         fingertips = {link for side in self.gripper.fingertip_links for link in side}
-        self.gripper.set_width(opening)
-        configs = transit + near_object
+        s = self.settings
+        configs = [*transit, *approach, *closed]
         for index, config in enumerate(configs):
+            self.gripper.set_width(opening if index < len(transit) + len(approach) else width)
             self.robot.place(config)
-            for point in client.getClosestPoints(body, self.world.table_id, self.settings.table_clearance):
-                if point[3] in links and (
-                    point[3] not in fingertips or point[8] < self.settings.fingertip_table_clearance
-                ):
+            for point in client.getClosestPoints(body, self.world.table_id,
+                                                 max(s.table_clearance, s.fingertip_table_clearance)):
+                limit = s.fingertip_table_clearance if point[3] in fingertips else s.table_clearance
+                if point[3] in links and point[8] < limit:
                     name = client.getJointInfo(body, point[3])[12].decode() if point[3] >= 0 else "base"
                     return f"robot would touch the table ({name} at waypoint {index + 1} of {len(configs)})"
             if index < len(transit) and client.getClosestPoints(body, self.object_body, 0.0):

@@ -47,8 +47,8 @@ def test_poses_are_rigid_and_centred_between_the_contacts(object_and_grasps) -> 
     # the contacts' midpoint lies on the approach axis, at a depth from the pad centres the sampler may choose
     midpoint_local = np.einsum("nji,nj->ni", rotations, g.contacts.mean(axis=1) - g.poses[:, :3, 3])
     assert np.allclose(midpoint_local[:, :2], 0.0, atol=1e-9)
-    depths = AntipodalConfig().contact_depths
-    assert np.all(np.isclose(midpoint_local[:, 2:3], np.asarray(depths)[None, :], atol=1e-9).any(axis=1))
+    depths = AntipodalConfig().all_contact_depths
+    assert np.all(np.isclose(midpoint_local[:, 2:3], depths[None, :], atol=1e-9).any(axis=1))
     closing = g.contacts[:, 1] - g.contacts[:, 0]
     assert np.allclose(np.linalg.norm(closing, axis=1), g.widths)
     # x axis of the gripper is the closing direction (finger to finger)
@@ -142,12 +142,50 @@ def test_hammer_grasp_holds_against_the_heavy_head() -> None:
     assert torque(naive) > config.torsion_limit
 
 
+def _along_pad(g: GraspSet) -> np.ndarray:
+    """Where the contacts' midpoint lies along the pads (m from their centres, + towards the fingertips)."""
+    return np.einsum("nij,ni->nj", g.poses[:, :3, :3], g.contacts.mean(axis=1) - g.poses[:, :3, 3])[:, 2]
+
+
 def test_contacts_stay_off_the_pad_ends() -> None:
     mesh = _on_table(trimesh.creation.box((0.03, 0.03, 0.012)))  # a flat part: the fingertips meet the table
-    g = AntipodalSampler(AntipodalConfig(friction_coefficient=MU)).generate(mesh, seed=0, table_plane=TABLE)
+    no_pinch = AntipodalConfig(friction_coefficient=MU, pinch_contact_depths=())
+    g = AntipodalSampler(no_pinch).generate(mesh, seed=0, table_plane=TABLE)
     assert len(g) > 0
-    along_pad = np.einsum("nij,ni->nj", g.poses[:, :3, :3], g.contacts.mean(axis=1) - g.poses[:, :3, 3])[:, 2]
-    assert np.abs(along_pad).max() <= 0.01875 - 0.006 + 1e-6  # >= 6 mm from either end of the 37.5 mm pad
+    assert np.abs(_along_pad(g)).max() <= 0.01875 - 0.006 + 1e-6  # >= 6 mm from either end of the 37.5 mm pad
+
+
+def test_a_low_part_lying_flat_is_pinched_with_the_fingertips() -> None:
+    # a 10 mm bar lying flat (a scissors handle, a toothbrush handle): its sides are lower than the pads reach with
+    # the contact 6.75 mm from the pad's end and the fingertips 3.5 mm above the table
+    bar = _on_table(trimesh.creation.box((0.12, 0.015, 0.010)))
+    config = AntipodalConfig(friction_coefficient=MU)
+    assert len(AntipodalSampler(AntipodalConfig(friction_coefficient=MU, pinch_contact_depths=())).generate(
+        bar, seed=0, table_plane=TABLE)) == 0
+    g = AntipodalSampler(config).generate(bar, seed=0, table_plane=TABLE)
+    assert len(g) >= 10
+    assert np.all(g.poses[:, 2, 2] <= -np.cos(np.deg2rad(config.pinch_max_tilt_deg)) + 1e-9)  # straight down
+    fingertips = g.poses[:, 2, 3] + ROBOTIQ_2F85.tip_beyond_origin * g.poses[:, 2, 2]
+    assert fingertips.min() >= config.pinch_table_clearance - 1e-6
+    assert _along_pad(g).max() <= 0.01875 - 0.00225 + 1e-6  # the contact at least 2.25 mm from the pad's end
+    assert np.all(np.abs(g.widths - 0.015) < 0.0015)  # across the bar, not along it
+
+
+def test_a_pinch_needs_the_pads_on_the_part_not_on_an_edge() -> None:
+    # a knife: a 12 mm handle and a 2 mm blade held 8 mm above the table by it; pinching the blade across its width
+    # would touch its two 2 mm edges with the last millimetres of the pads
+    handle = trimesh.creation.box((0.10, 0.02, 0.012))
+    handle.apply_translation([-0.05, 0.0, 0.006])
+    blade = trimesh.creation.box((0.08, 0.02, 0.002))
+    blade.apply_translation([0.04, 0.0, 0.009])
+    knife = trimesh.util.concatenate([handle, blade])
+
+    def blade_grasps(config: AntipodalConfig) -> int:
+        g = AntipodalSampler(config).generate(knife, seed=0, table_plane=TABLE)
+        return int((g.contacts[:, :, 0].min(axis=1) > 0.015).sum())  # the 22 mm pads clear of the handle's end
+
+    assert blade_grasps(AntipodalConfig(friction_coefficient=MU, pinch_min_band=0.0)) > 0  # without the check
+    assert blade_grasps(AntipodalConfig(friction_coefficient=MU)) == 0
 
 
 def test_footprint_gives_the_width_the_pads_close_on() -> None:

@@ -5,8 +5,10 @@ solver iterations."""
 import numpy as np
 import pytest
 
+from seggrasp.episode import table_plane_in_object_frame
+from seggrasp.grasp import AntipodalSampler
 from seggrasp.objects import load_asset_set
-from sim.cell import SimCell
+from sim.cell import GraspSettings, SimCell
 from sim.primitives import primitive_object, top_down_grasp
 
 IMAGE = (160, 120)
@@ -75,3 +77,21 @@ def test_a_run_resumes_only_on_the_twin_gripper_it_started_with(tmp_path):
     (tmp_path / "run.json").write_text(json.dumps(run))
     with pytest.raises(ValueError, match="twin_gripper"):
         prepare_out(tmp_path, config, resume=True)
+
+
+def test_a_low_bar_lying_flat_is_pinched_with_the_fingertips_and_lifted(tmp_path):
+    # a 10 mm bar lying flat (a scissors or toothbrush handle): the sampler's only grasps pinch it with the
+    # fingertips 1.5 mm above the table; the twin lets them that close and the pads hold it
+    bar = primitive_object("box", (0.12, 0.015, 0.010), tmp_path, mass=0.05)
+    with SimCell([bar], embodiment="arm", seed=0, image_size=IMAGE) as cell:
+        mesh, T_world_obj = cell.object_mesh()
+        grasps = AntipodalSampler().generate(mesh, seed=0, table_plane=table_plane_in_object_frame(mesh, T_world_obj))
+        assert len(grasps) > 0
+        T_world_grasp = T_world_obj @ grasps.poses[0]
+        outcome = cell.execute(T_world_grasp, float(grasps.widths[0]))
+        assert outcome.lifted, outcome.message
+    # a cell that keeps its fingertips 5 mm above the table (the clearance the example cell.yaml had) refuses it
+    strict = GraspSettings(fingertip_table_clearance=0.005)
+    with SimCell([bar], embodiment="arm", seed=0, image_size=IMAGE, grasp=strict) as cell:
+        outcome = cell.execute(T_world_grasp, float(grasps.widths[0]))
+        assert outcome.failure == "collision" and "touch the table" in outcome.message, outcome.message
