@@ -1,0 +1,104 @@
+"""One method in two runs (before and after a change): Part Sel. and Suc. over all slots per seed and per category,
+failures by name, and the paired difference per request with its standard error over requests and over objects.
+
+    python bench/bench_compare_runs.py --before /tmp/lead/r5/oracle235 --after /tmp/lead/p1/full --method oracle \
+        --label "fingertip pinches" --out docs/results/twin-physics-pinch-oracle-seeds0-1-paired.md
+
+Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders). A request is one (seed, object, prompt);
+its Part Sel. and Suc. are the shares of its top-k slots (a slot without a grasp is a miss). The paired difference
+is taken over the requests both runs have; its standard error is given over requests and with the objects as
+clusters (a request's slots and an object's prompts share its shape, so the clustered one is the honest one).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_selection import per_request, read_trials  # noqa: E402
+
+from seggrasp.io import atomic_write_text  # noqa: E402
+
+COLUMNS = {"Part Sel. (all slots)": 0, "Suc. (all slots)": 1, "top-1 Suc.": 3}
+
+
+def clustered_standard_error(d: np.ndarray, clusters: list[str]) -> float:
+    """Standard error of the mean of `d` with the observations grouped in `clusters` (sum of each cluster's
+    residuals, squared, summed: the cluster-robust variance of a mean)."""
+    residual = defaultdict(float)
+    for value, cluster in zip(d - d.mean(), clusters):
+        residual[cluster] += value
+    return float(np.sqrt(sum(r * r for r in residual.values())) / len(d))
+
+
+def compare(before: list[dict], after: list[dict], method: str) -> list[str]:
+    """Markdown lines comparing `method` in the two runs' trial records."""
+    a, b = per_request(after).get(method, {}), per_request(before).get(method, {})
+    keys = sorted(set(a) & set(b))
+    if not keys:
+        raise ValueError(f"the two runs share no request of method {method!r}")
+    category = {r["object_id"]: r["category"] for r in after + before}
+    seeds = sorted({k[0] for k in keys})
+    lines = [f"Requests compared: {len(keys)} (seeds {', '.join(map(str, seeds))}, "
+             f"{len({k[1] for k in keys})} objects).", "",
+             "| metric | before | after | after − before ± SE over requests / over objects | per seed (after − before) |",
+             "|---|---|---|---|---|"]
+    for name, column in COLUMNS.items():
+        d = np.array([a[k][column] - b[k][column] for k in keys])
+        se_requests = float(d.std(ddof=1) / np.sqrt(len(d))) if len(d) > 1 else float("nan")
+        se_objects = clustered_standard_error(d, [k[1] for k in keys])
+        per_seed = " / ".join(f"{np.mean([x for x, k in zip(d, keys) if k[0] == s]):+.3f}" for s in seeds)
+        before_mean = np.mean([b[k][column] for k in keys])
+        after_mean = np.mean([a[k][column] for k in keys])
+        lines.append(f"| {name} | {before_mean:.3f} | {after_mean:.3f} | {d.mean():+.3f} ± {se_requests:.3f} / "
+                     f"{se_objects:.3f} | {per_seed} |")
+    lines += ["", "Part Sel. / Suc. over all slots per category, before → after:", "",
+              "| category | requests | Part Sel. | Suc. |", "|---|---|---|---|"]
+    for cat in sorted({category[k[1]] for k in keys}):
+        mine = [k for k in keys if category[k[1]] == cat]
+        cells = [f"{np.mean([b[k][c] for k in mine]):.2f} → {np.mean([a[k][c] for k in mine]):.2f}" for c in (0, 1)]
+        lines.append(f"| {cat} | {len(mine)} | {' | '.join(cells)} |")
+    shared = set(keys)
+
+    def failures(records: list[dict]) -> Counter:
+        from sim.evaluate.records import seed_of
+
+        return Counter(r.get("failure") or "other" for r in records if r["method"] == method and not r["success"]
+                       and (seed_of(r), r["object_id"], r["prompt"]) in shared)
+
+    fb, fa = failures(before), failures(after)
+    lines += ["", "Failed slots by name, before → after: "
+              + ", ".join(f"{name} {fb[name]} → {fa[name]}" for name in sorted(set(fb) | set(fa))) + "."]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--before", type=Path, required=True, help="sim.evaluate output folder before the change")
+    parser.add_argument("--after", type=Path, required=True, help="sim.evaluate output folder after the change")
+    parser.add_argument("--method", default="oracle")
+    parser.add_argument("--label", default="the change", help="what changed, for the page's title")
+    parser.add_argument("--out", type=Path, help="write the markdown here (atomically); default: print it")
+    args = parser.parse_args(argv)
+    try:
+        lines = compare(read_trials(args.before), read_trials(args.after), args.method)
+    except (FileNotFoundError, ValueError) as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    command = shlex.join(["python", "bench/bench_compare_runs.py", *(argv if argv is not None else sys.argv[1:])])
+    page = "\n".join([f"# `{args.method}` before and after {args.label}", "",
+                      f"Written by `{command}`.", f"Before: `{args.before}`; after: `{args.after}`.", "", *lines, ""])
+    if args.out:
+        atomic_write_text(args.out, page)
+    print(page)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

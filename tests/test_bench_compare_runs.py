@@ -1,0 +1,52 @@
+"""bench/bench_compare_runs.py pairs one method's requests across two runs and clusters the error by object."""
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+bench_compare_runs = pytest.importorskip("bench_compare_runs")
+
+
+def _run(folder: Path, lifted: dict[tuple[str, str], int]) -> Path:
+    """A run folder whose oracle lifts `lifted[(object, prompt)]` of 4 slots (seed 0), the rest `no_grasp`."""
+    rows = []
+    for (obj, prompt), n in lifted.items():
+        for rank in range(4):
+            ok = rank < n
+            rows.append(dict(method="oracle", object_id=obj, category=obj.split("_")[0], prompt=prompt, rank=rank,
+                             seed=0, executed=ok, contacts_on_part=ok, success=ok, failure="" if ok else "no_grasp"))
+    folder.mkdir()
+    (folder / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return folder
+
+
+def test_the_paired_difference_counts_each_request_once_and_names_the_failures(tmp_path):
+    before = _run(tmp_path / "before", {("mug_a", "handle"): 2, ("mug_a", "body"): 4, ("knife_a", "blade"): 0})
+    after = _run(tmp_path / "after", {("mug_a", "handle"): 4, ("mug_a", "body"): 4, ("knife_a", "blade"): 2,
+                                      ("knife_b", "blade"): 4})  # a request only one run has is not compared
+    page = tmp_path / "page.md"
+    assert bench_compare_runs.main(["--before", str(before), "--after", str(after), "--out", str(page)]) == 0
+    text = page.read_text()
+    assert "Requests compared: 3" in text
+    # Suc. per request: 0.5 -> 1, 1 -> 1, 0 -> 0.5: mean +0.333
+    row = next(line for line in text.splitlines() if line.startswith("| Suc. (all slots)"))
+    assert "| 0.500 | 0.833 | +0.333 ±" in row
+    assert "no_grasp 6 → 2" in text
+
+
+def test_the_clustered_error_grows_when_an_objects_requests_move_together():
+    d = np.array([0.5, 0.5, 0.0, 0.0])
+    apart = bench_compare_runs.clustered_standard_error(d, ["a", "b", "c", "d"])
+    together = bench_compare_runs.clustered_standard_error(d, ["a", "a", "c", "c"])
+    assert together > apart > 0
+
+
+def test_runs_without_a_shared_request_are_an_error(tmp_path, capsys):
+    before = _run(tmp_path / "before", {("mug_a", "handle"): 2})
+    after = _run(tmp_path / "after", {("mug_b", "handle"): 2})
+    assert bench_compare_runs.main(["--before", str(before), "--after", str(after)]) == 2
+    assert "share no request" in capsys.readouterr().err
