@@ -1,8 +1,8 @@
-"""One method in two runs (before and after a change): Part Sel. and Suc. over all slots per seed and per category,
+"""Methods in two runs (before and after a change): Part Sel. and Suc. over all slots per seed and per category,
 failures by name, and the paired difference per request with its standard error over requests and over objects.
 
-    python bench/bench_compare_runs.py --before /tmp/lead/r5/oracle235 --after /tmp/lead/p1/full --method oracle \
-        --label "fingertip pinches" --out docs/results/twin-physics-pinch-oracle-seeds0-1-paired.md
+    python bench/bench_compare_runs.py --before /tmp/lead/s6 --after /tmp/lead/p1/s7 --methods oracle,seggrasp \
+        --label "fingertip pinches" --out docs/results/twin-physics-pinch-seeds0-4.md
 
 Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders). A request is one (seed, object, prompt);
 its Part Sel. and Suc. are the shares of its top-k slots (a slot without a grasp is a miss). The paired difference
@@ -82,18 +82,20 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--before", type=Path, required=True, help="sim.evaluate output folder before the change")
     parser.add_argument("--after", type=Path, required=True, help="sim.evaluate output folder after the change")
-    parser.add_argument("--method", default="oracle")
+    parser.add_argument("--methods", default="oracle", help="comma-separated; one section each")
     parser.add_argument("--label", default="the change", help="what changed, for the page's title")
     parser.add_argument("--out", type=Path, help="write the markdown here (atomically); default: print it")
     args = parser.parse_args(argv)
     try:
-        lines = compare(read_trials(args.before), read_trials(args.after), args.method)
+        before, after = read_trials(args.before), read_trials(args.after)
+        lines = [line for method in args.methods.split(",")
+                 for line in (f"## `{method}`", "", *compare(before, after, method), "")]
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     command = shlex.join(["python", "bench/bench_compare_runs.py", *(argv if argv is not None else sys.argv[1:])])
-    page = "\n".join([f"# `{args.method}` before and after {args.label}", "",
-                      f"Written by `{command}`.", f"Before: `{args.before}`; after: `{args.after}`.", "", *lines, ""])
+    page = "\n".join([f"# Before and after {args.label}", "", f"Written by `{command}`.",
+                      f"Before: `{args.before}`; after: `{args.after}`.", "", *lines])
     if args.out:
         atomic_write_text(args.out, page)
     print(page)
