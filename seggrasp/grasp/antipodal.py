@@ -8,12 +8,13 @@
    pair tilted a little from the table also gets a straight-down pose closing level with the table across its
    middle (`_level_poses`: a round handle lying flat is held across its widest section, with a line contact).
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
-   from near the palm end to near the tip, never within `pad_end_margin` of either end) and keeps the deepest
+   from near the palm end to near the tip, never within 6.75 mm of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
    below an optional table plane. A pose coming straight down onto the table (within `pinch_max_tilt_deg`) that
    finds no such depth is tried once more as a fingertip pinch (`pinch_contact_depths`, the fingertips
    `pinch_table_clearance` above the table): how a 2F-85 picks a part lying flat whose sides are lower than the
-   pads reach with the normal margins (scissors handles, eyeglass rims, toothbrush handles).
+   pads reach with the normal margins (toothbrush handles, screwdriver shafts, eyeglass temples). A pinch is kept
+   only where both pads touch the part over `pinch_min_band` of their length.
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
    between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
@@ -184,7 +185,7 @@ class AntipodalSampler:
             bands = np.concatenate([
                 _pad_bands(poses[chunk], openings[free][chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
                            cfg.pinch_band_tolerance)
-                for chunk in np.array_split(pinch, max(1, len(pinch) // COLLISION_CHUNK))
+                for chunk in np.array_split(pinch, -(-len(pinch) // COLLISION_CHUNK))
             ])
             fits[pinch] = bands >= cfg.pinch_min_band
         poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
