@@ -202,10 +202,16 @@ def test_footprint_gives_the_width_the_pads_close_on() -> None:
     assert np.all(g.widths[near_cap] > 0.05)  # the cap, not the 20 mm stem, sets the width
 
 
-def test_bad_table_plane_is_rejected() -> None:
+def test_bad_table_plane_and_config_are_rejected() -> None:
     box = trimesh.creation.box((0.05, 0.05, 0.05))
     with pytest.raises(ValueError, match="table_plane"):
         AntipodalSampler().generate(box, table_plane=[0, 0, 1])
+    with pytest.raises(ValueError, match="pinch_contact_depths"):
+        AntipodalConfig(pinch_contact_depths=(0.019,))  # beyond the pad's end
+    with pytest.raises(ValueError, match="pinch_table_clearance"):
+        AntipodalConfig(pinch_table_clearance=-0.001)
+    with pytest.raises(ValueError, match="pinch_max_tilt_deg"):
+        AntipodalConfig(pinch_max_tilt_deg=120.0)
     with pytest.raises(ValueError, match="friction_coefficient"):
         AntipodalConfig(friction_coefficient=0.0)
 

@@ -107,6 +107,10 @@ class AntipodalConfig:
             depths = getattr(self, name)
             if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
                 raise ValueError(f"{name} must lie on the pad (|d| < {self.pad_half_length}), got {depths}")
+        if min(self.pinch_table_clearance, self.pinch_min_band, self.pinch_band_tolerance) < 0:
+            raise ValueError("pinch_table_clearance, pinch_min_band and pinch_band_tolerance must not be negative")
+        if not 0 <= self.pinch_max_tilt_deg <= 90:
+            raise ValueError(f"pinch_max_tilt_deg must be in [0, 90], got {self.pinch_max_tilt_deg}")
 
     @property
     def all_contact_depths(self) -> np.ndarray:
