@@ -11,7 +11,7 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
    the object; otherwise the grasp is `reachable=False` and nothing moves;
 2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
    speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
-   finger stalls, lift, hold 1 s (once the squeeze splays the pads, solved with more iterations: `PhysicsSettings`);
+   finger stalls, lift, hold 1 s (objects under 50 g at more solver iterations: `PhysicsSettings`);
 3. report: lifted (the grasped point raised >= 18 cm, both fingertips still touching the object, and the object
    moved < 10 mm / 15 deg relative to the gripper from the close to the end of the hold), else the failure
    (`unreachable`, `collision`, `pushed`, `empty_close`, `slipped`, `rotated`); the rise of the grasped point, the
@@ -389,7 +389,8 @@ class GraspPrimitive:
         s = self.settings
         configs = [*transit, *approach, *closed]
         for index, config in enumerate(configs):
-            self.gripper.set_width(opening if index < len(transit) + len(approach) else width)
+            if index in (0, len(transit) + len(approach)):  # open from the start, closed from the grasp on
+                self.gripper.set_width(opening if index < len(transit) + len(approach) else width)
             self.robot.place(config)
             for point in client.getClosestPoints(body, self.world.table_id,
                                                  max(s.table_clearance, s.fingertip_table_clearance)):
