@@ -24,6 +24,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_selection import per_request, read_trials  # noqa: E402
 
 from seggrasp.io import atomic_write_text  # noqa: E402
+from sim.evaluate.records import seed_of  # noqa: E402
 
 COLUMNS = {"Part Sel. (all slots)": 0, "Suc. (all slots)": 1, "top-1 Suc.": 3}
 
@@ -67,8 +68,6 @@ def compare(before: list[dict], after: list[dict], method: str) -> list[str]:
     shared = set(keys)
 
     def failures(records: list[dict]) -> Counter:
-        from sim.evaluate.records import seed_of
-
         return Counter(r.get("failure") or "other" for r in records if r["method"] == method and not r["success"]
                        and (seed_of(r), r["object_id"], r["prompt"]) in shared)
 
