@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import logging
 import time
 from pathlib import Path
@@ -23,6 +22,7 @@ import numpy as np
 from seggrasp.io import atomic_write_text
 from seggrasp.objects import load_asset_set
 from sim.cell import SimCell
+from sim.evaluate.records import JsonLines, seed_of
 from sim.gripper import GripperSettings
 from sim.world import PhysicsSettings
 
@@ -38,12 +38,8 @@ def parse_setting(text: str) -> tuple[int, float]:
 
 def recorded_grasps(run: Path, object_id: str, prompt: str, seed: int, limit: int) -> list[dict]:
     """The first `limit` executed trials of `object_id` / `prompt` at `seed` in a run's trials.jsonl."""
-    rows = []
-    with open(run / "trials.jsonl") as handle:
-        for line in handle:
-            record = json.loads(line)
-            if (record["object_id"], record["prompt"], record["seed"]) == (object_id, prompt, seed) and record["executed"]:
-                rows.append(record)
+    rows = [r for r in JsonLines(run / "trials.jsonl").read()
+            if (r["object_id"], r["prompt"], seed_of(r)) == (object_id, prompt, seed) and r["executed"]]
     return sorted(rows, key=lambda r: (r["method"], r["rank"]))[:limit]
 
 

@@ -387,10 +387,10 @@ class GraspPrimitive:
         links = set(links)
         fingertips = {link for side in self.gripper.fingertip_links for link in side}
         s = self.settings
-        configs = [*transit, *approach, *closed]
+        configs, n_open = [*transit, *approach, *closed], len(transit) + len(approach)
         for index, config in enumerate(configs):
-            if index in (0, len(transit) + len(approach)):  # open from the start, closed from the grasp on
-                self.gripper.set_width(opening if index < len(transit) + len(approach) else width)
+            if index in (0, n_open):  # open from the start, closed from the grasp on
+                self.gripper.set_width(opening if index < n_open else width)
             self.robot.place(config)
             for point in client.getClosestPoints(body, self.world.table_id,
                                                  max(s.table_clearance, s.fingertip_table_clearance)):

@@ -56,7 +56,6 @@ class PhysicsSettings:
     gravity: float = -9.81
 
 
-
 def pose_to_pb(T: np.ndarray) -> tuple[list[float], list[float]]:
     """4x4 pose -> PyBullet (position, quaternion xyzw)."""
     T = np.asarray(T, dtype=float)

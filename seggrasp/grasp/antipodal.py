@@ -175,11 +175,11 @@ class AntipodalSampler:
             LOG.info("antipodal sampler: every candidate pose collides")
             return GraspSet.empty()
         contact_depth = cfg.all_contact_depths[depth_index[free]]
-        poses = axis_poses[free].copy()
+        poses, openings = axis_poses[free].copy(), openings[free]
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
         contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
         widths, facing = self._apply_footprint(
-            poses, contacts, widths[free].copy(), openings[free], cloud, cloud_normals, is_level[free]
+            poses, contacts, widths[free].copy(), openings, cloud, cloud_normals, is_level[free]
         )
         # the footprint may be wider than the stroke; a level pose must meet surface facing its pads; a pinch must
         # touch the part over `pinch_min_band` of its pads
@@ -187,7 +187,7 @@ class AntipodalSampler:
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
-                _pad_bands(poses[chunk], openings[free][chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
+                _pad_bands(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
                            cfg.pinch_band_tolerance)
                 for chunk in np.array_split(pinch, -(-len(pinch) // COLLISION_CHUNK))
             ])
