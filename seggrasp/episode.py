@@ -27,6 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
+from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.select import TOP_K
 from seggrasp.labels import prompt_index
 from seggrasp.mesh import mesh_hash, prepare_mesh
@@ -35,6 +36,8 @@ from seggrasp.objects import ObjectModel
 from seggrasp.truth import DetectorSpec, GroundTruth
 
 LOG = logging.getLogger(__name__)
+#: Label-based selection keeps a grasp only where each pad presses mostly on the labelled part.
+PAD_FOOTPRINT = PadFootprint()
 
 
 @dataclass
@@ -167,15 +170,16 @@ def plan_slots(
     plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int
 ) -> list[Slot]:
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
-    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on; moved into
-    the world."""
+    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on whose pads
+    press mostly on them (`PAD_FOOTPRINT`); moved into the world."""
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
         if plan.policy is not None:
             chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, top_k)
         else:
-            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k)
+            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k,
+                                                  PAD_FOOTPRINT)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:

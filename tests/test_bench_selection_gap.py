@@ -25,6 +25,7 @@ def write_object(cache: Path, swapped: bool) -> None:
     contacts = np.array([[[x + dx, -0.02, z], [x + dx, 0.02, z]] for x in (-0.03, 0.03)
                          for dx, z in ((-0.01, 0.0), (0.0, 0.005), (0.01, -0.005))])
     poses = np.repeat(np.eye(4)[None], len(contacts), axis=0)
+    poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # closing along y, from above
     poses[:, :3, 3] = contacts.mean(axis=1)
     record = dict(seed=0, object_id="two_boxes", prompts=["left", "right"], vertices=mesh.vertices, faces=mesh.faces,
                   coarse=coarse, truth=truth, partitions=[(0.05, truth.copy())],

@@ -5,6 +5,7 @@ import pytest
 import trimesh
 
 from seggrasp.grasp import AntipodalSampler, GraspSet
+from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
 
@@ -61,6 +62,39 @@ def test_top_k_per_prompt_best_first(hammer) -> None:
         assign_parts(grasps, mesh, labels[:-1])
     with pytest.raises(ValueError, match="top_k"):
         select_on_part(grasps, parts, 0, top_k=0)
+
+
+def test_the_pads_must_press_on_the_part_not_on_a_wider_neighbour(hammer) -> None:
+    mesh, labels = hammer
+    # two grasps on the handle coming down from above and closing across it (pads 22 mm along x): one in its
+    # middle, one whose contacts are on the handle 6 mm from the head, so its pads' edge reaches the wider head
+    xs = [0.0, 0.054]
+    contacts = np.array([[[x, -0.0125, 0.0], [x, 0.0125, 0.0]] for x in xs])
+    poses = np.repeat(np.eye(4)[None], 2, axis=0)
+    poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    poses[:, :3, 3] = contacts.mean(axis=1)
+    grasps = GraspSet(poses, [0.025, 0.025], [0.5, 0.9], contacts)
+    assert assign_parts(grasps, mesh, labels).tolist() == [0, 0]
+    assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2)] == [[1, 0], []]
+    under_pads = PadFootprint().on(mesh).pad_means(grasps, (labels == 0).astype(float)[:, None])[:, :, 0]
+    np.testing.assert_allclose(under_pads[0], 1.0)
+    assert (under_pads[1] < 0.1).all()  # the head stands 12.5 mm proud: the pads close on it first
+    assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())] == [[0], []]
+
+
+def test_sampled_grasps_on_a_handle_keep_their_pads_off_the_head(hammer) -> None:
+    mesh, labels = hammer
+    grasps = AntipodalSampler().generate(mesh, seed=1)
+    plain = select_per_prompt(grasps, mesh, labels, n_prompts=2, top_k=10)
+    kept = select_per_prompt(grasps, mesh, labels, n_prompts=2, top_k=10, footprint=PadFootprint())
+    assert [len(c) for c in kept] == [10, 10]
+    surface = PadFootprint(margin=0.0, tolerance=0.0005).on(mesh)
+    for k, chosen in enumerate(kept):
+        assert np.all(np.diff(grasps.scores[chosen]) <= 0)
+        # even measured with the bare pads, what each chosen grasp presses on is mostly its own part
+        shares = surface.pad_means(grasps.subset(chosen), (labels == k).astype(float)[:, None])[:, :, 0]
+        assert (shares >= 0.5).all()
+    assert any(set(a) != set(b) for a, b in zip(plain, kept))  # the check changed some choice
 
 
 class _FixedGraspModel:

@@ -376,16 +376,28 @@ def _sweep(
     return span, x_low, x_high, low, high
 
 
+def pad_touches(
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Which points of `cloud` each pad closes on, per pose: the points its sweep (`_swept_points`, a pad of
+    2 half_width x 2 half_length closing from `openings`) holds within `tolerance` of its first touch. Returns the
+    -x pad's and the +x pad's masks (G, M) and the points' z in each gripper frame (G, M)."""
+    x, z, inside = _swept_points(poses, openings, cloud, half_width, -half_length, half_length)
+    masks = []
+    for sign in (-1.0, 1.0):  # the -x pad touches the lowest x, the +x pad the highest
+        first = np.where(inside, sign * x, -np.inf).max(axis=1, keepdims=True)
+        masks.append(inside & (sign * x >= first - tolerance))
+    return masks[0], masks[1], z
+
+
 def _pad_bands(
     poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
 ) -> np.ndarray:
     """Per pose, how far along the pads (m) the surface they close on reaches: for each pad the extent along z of
     the swept points within `tolerance` of its first touch, the smaller of the two (0 where nothing is swept)."""
-    x, z, inside = _swept_points(poses, openings, cloud, half_width, -half_length, half_length)
+    low_pad, high_pad, z = pad_touches(poses, openings, cloud, half_width, half_length, tolerance)
     bands = []
-    for sign in (-1.0, 1.0):  # the -x pad touches the lowest x, the +x pad the highest
-        first = np.where(inside, sign * x, -np.inf).max(axis=1, keepdims=True)
-        touching = inside & (sign * x >= first - tolerance)
+    for touching in (low_pad, high_pad):
         extent = np.where(touching, z, -np.inf).max(axis=1) - np.where(touching, z, np.inf).min(axis=1)
         bands.append(np.where(touching.any(axis=1), extent, 0.0))
     return np.minimum(*bands)

@@ -3,7 +3,8 @@
 A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts
 and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
 never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
-the prompted part.
+the prompted part. With a `PadFootprint`, a grasp is also kept only where each pad presses mostly on the part
+(`seggrasp.grasp.footprint`): two contacts on a wine glass's stem say nothing of the bowl under the pads' edge.
 """
 
 from __future__ import annotations
@@ -11,18 +12,13 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
+from seggrasp.grasp.footprint import PadFootprint, contact_faces
 from seggrasp.grasp.types import GraspSet
 
 UNASSIGNED = -1
 TOP_K = 10
-
-
-def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
-    """(N, 2) index of the mesh face nearest to each contact point (contacts in the mesh's frame)."""
-    if len(grasps) == 0:
-        return np.zeros((0, 2), dtype=np.int64)
-    _, _, triangle = trimesh.proximity.closest_point(mesh, grasps.contacts.reshape(-1, 3))
-    return np.asarray(triangle, dtype=np.int64).reshape(-1, 2)
+#: Grasps whose footprint is checked at once while filling a prompt's top-k.
+FOOTPRINT_CHUNK = 16
 
 
 def assign_parts(grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray) -> np.ndarray:
@@ -51,8 +47,25 @@ def select_on_part(grasps: GraspSet, grasp_parts: np.ndarray, part: int, top_k: 
 
 
 def select_per_prompt(
-    grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray, n_prompts: int, top_k: int = TOP_K
+    grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray, n_prompts: int, top_k: int = TOP_K,
+    footprint: PadFootprint | None = None,
 ) -> list[np.ndarray]:
-    """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none)."""
+    """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none);
+    with a `footprint`, only grasps whose pads each press on at least its `min_share` of faces labelled k."""
     parts = assign_parts(grasps, mesh, face_labels)
-    return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]
+    if footprint is None:
+        return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]
+    labels, surface = np.asarray(face_labels), footprint.on(mesh)
+    chosen = []
+    for k in range(n_prompts):
+        ranked = select_on_part(grasps, parts, k, top_k=max(len(grasps), 1))
+        is_part = (labels == k).astype(np.float64)[:, None]
+        kept: list[int] = []
+        for start in range(0, len(ranked), FOOTPRINT_CHUNK):
+            if len(kept) >= top_k:
+                break
+            block = ranked[start : start + FOOTPRINT_CHUNK]
+            shares = surface.pad_means(grasps.subset(block), is_part)[:, :, 0]
+            kept += block[(shares >= footprint.min_share).all(axis=1)].tolist()
+        chosen.append(np.asarray(kept[:top_k], dtype=np.int64))
+    return chosen

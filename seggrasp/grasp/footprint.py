@@ -1,0 +1,95 @@
+"""What lies under a grasp's pads: the faces nearest its contacts, and the surface each pad closes on.
+
+A grasp's two contact points say little about what its 22 x 37.5 mm pads will press on. `PadFootprint` finds, on a
+dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
+its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.antipodal.pad_touches`), with the pad widened
+by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge
+takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
+just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
+over those points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from seggrasp.grasp.antipodal import AntipodalConfig, pad_touches
+from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+
+
+def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
+    """(N, 2) index of the mesh face nearest to each contact point (contacts in the mesh's frame)."""
+    if len(grasps) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    _, _, triangle = trimesh.proximity.closest_point(mesh, grasps.contacts.reshape(-1, 3))
+    return np.asarray(triangle, dtype=np.int64).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class PadFootprint:
+    """The surface under each pad of a grasp (module docstring). Sizes in metres; `min_share` is the share of the
+    prompted part each pad must press on for label-based selection to keep the grasp (the twin judges a lift on
+    the part the pads press on most, `seggrasp.truth.GroundTruth.touched_on_part`)."""
+
+    margin: float = 0.003
+    tolerance: float = 0.002
+    point_spacing: float = 0.0015
+    min_points: int = 2000
+    max_points: int = 40000
+    min_share: float = 0.5
+    seed: int = 0
+    gripper: GripperGeometry = field(default=ROBOTIQ_2F85, repr=False)
+
+    def __post_init__(self) -> None:
+        if min(self.margin, self.tolerance) < 0 or self.point_spacing <= 0:
+            raise ValueError(f"invalid pad footprint {self}: margin and tolerance must be >= 0, point_spacing > 0")
+        if not 1 <= self.min_points <= self.max_points or not 0 < self.min_share <= 1:
+            raise ValueError(f"invalid pad footprint {self}: need 1 <= min_points <= max_points, min_share in (0, 1]")
+
+    def on(self, mesh: trimesh.Trimesh) -> "PadSurface":
+        """This footprint on `mesh` (samples its surface once, for any number of grasp queries)."""
+        return PadSurface(self, mesh)
+
+
+class PadSurface:
+    """A `PadFootprint` on one mesh: an even sample of its surface, and what each pad of a grasp closes on."""
+
+    def __init__(self, footprint: PadFootprint, mesh: trimesh.Trimesh) -> None:
+        self.footprint = footprint
+        self.mesh = mesh
+        count = int(np.clip(mesh.area / footprint.point_spacing**2, footprint.min_points, footprint.max_points))
+        self.points, self.point_faces = trimesh.sample.sample_surface_even(mesh, count, seed=footprint.seed)
+        self._tree = cKDTree(self.points)
+
+    def touched_faces(self, grasps: GraspSet) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per grasp, the mesh face of every sample point the -x pad and the +x pad close on (one entry per point,
+        so faces repeat in proportion to their area under the pad; empty where a pad touches nothing)."""
+        fp = self.footprint
+        half_width = AntipodalConfig.pad_half_width + fp.margin
+        half_length = AntipodalConfig.pad_half_length + fp.margin
+        openings = fp.gripper.pre_grasp_opening(grasps.widths)
+        reach = np.sqrt((0.5 * openings) ** 2 + half_width**2 + half_length**2)
+        touched = []
+        for pose, opening, radius in zip(grasps.poses, openings, reach):
+            near = np.asarray(self._tree.query_ball_point(pose[:3, 3], radius), dtype=np.int64)
+            low_pad, high_pad, _ = pad_touches(pose[None], np.array([opening]), self.points[near], half_width,
+                                               half_length, fp.tolerance)
+            touched.append((self.point_faces[near[low_pad[0]]], self.point_faces[near[high_pad[0]]]))
+        return touched
+
+    def pad_means(self, grasps: GraspSet, face_values: np.ndarray) -> np.ndarray:
+        """(N, 2, P) per grasp and pad the mean of `face_values` (F, P) over the surface the pad closes on (the
+        face nearest the contact where it closes on none of the sample points)."""
+        face_values = np.asarray(face_values, dtype=np.float64)
+        if face_values.ndim != 2 or len(face_values) != len(self.mesh.faces):
+            raise ValueError(f"need (F, P) face values for {len(self.mesh.faces)} faces, got {face_values.shape}")
+        means = face_values[contact_faces(grasps, self.mesh)]  # (N, 2, P)
+        for i, pads in enumerate(self.touched_faces(grasps)):
+            for pad, faces in enumerate(pads):
+                if len(faces):
+                    means[i, pad] = face_values[faces].mean(axis=0)
+        return means
