@@ -2,6 +2,7 @@
 adapter slot and part assignment / per-prompt selection."""
 
 from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
+from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator, PointCloudGraspModel
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspGenerator, GraspSet, GripperGeometry
@@ -14,6 +15,7 @@ __all__ = [
     "GraspSet",
     "GripperGeometry",
     "LearnedGraspGenerator",
+    "PadFootprint",
     "PointCloudGraspModel",
     "ROBOTIQ_2F85",
     "assign_parts",
