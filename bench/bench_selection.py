@@ -195,7 +195,7 @@ def planned_variants():
             ("policy", ("geofusion", "votes", "anchored"), default),
         "... + ShapeGrasp's part per prompt": ("policy", ("geofusion", "votes", "anchored", "shapegrasp"), default),
         "`seggrasp`, nearest face only (`seggrasp-nearest`)":
-            ("policy", ("geofusion", "votes", "anchored"), PartPolicy(footprint=None)),
+            ("policy", ("geofusion", "votes", "anchored"), PartPolicy(footprint_radius=0.0)),
         "`seggrasp`, ranked by probability alone (no region in the generator's order)":
             ("policy", ("geofusion", "votes", "anchored"), PartPolicy(region_fraction=1.0)),
         "ground-truth labels (`oracle`)": ("labels", "truth"),

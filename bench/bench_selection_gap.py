@@ -102,7 +102,7 @@ def load_object(path: Path) -> dict:
         obj["baseline"] = [np.zeros(0, dtype=np.int64)] * n_prompts
         return obj
     obj["faces"] = contact_faces(grasps, mesh)
-    run_policy = PartPolicy(footprint=plan.policy.footprint, region_fraction=BASELINE_REGION,
+    run_policy = PartPolicy(footprint_radius=plan.policy.footprint_radius, region_fraction=BASELINE_REGION,
                             min_probability=plan.policy.min_probability)
     obj["baseline"] = run_policy.select(grasps, mesh, plan.face_probabilities, TOP_K)
     tree = cKDTree(mesh.triangles_center)
@@ -168,8 +168,8 @@ def part_prior(obj: dict, gated: bool, levels: int = 1) -> np.ndarray:
 
 
 def pad_probabilities(obj: dict, face_probs: np.ndarray, radius: float = 0.008, core: bool = False) -> np.ndarray:
-    """(N, 2, P) per contact the area-weighted mean of `face_probs` over the faces within `radius` of it (a sphere,
-    the footprint `seggrasp.grasp.policy` used before the pads' own), or with `core` the least probable of them."""
+    """(N, 2, P) per contact the area-weighted mean of `face_probs` under the pad's footprint (as
+    `seggrasp.grasp.policy.pad_probabilities`), or with `core` the least probable face under it."""
     footprint = obj["footprints"][radius]
     if not core:
         weight = np.asarray(footprint.sum(axis=1)).ravel()

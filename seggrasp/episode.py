@@ -36,7 +36,7 @@ from seggrasp.objects import ObjectModel
 from seggrasp.truth import DetectorSpec, GroundTruth
 
 LOG = logging.getLogger(__name__)
-#: Label-based selection keeps a grasp only where each pad presses mostly on the labelled part.
+#: Label-based selection puts the grasps whose pads each press mostly on the labelled part first.
 PAD_FOOTPRINT = PadFootprint()
 
 
@@ -170,8 +170,8 @@ def plan_slots(
     plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int
 ) -> list[Slot]:
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
-    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on whose pads
-    press mostly on them (`PAD_FOOTPRINT`); moved into the world."""
+    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
+    pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world."""
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:

@@ -65,7 +65,7 @@ class Recipe(NamedTuple):
 RECIPES: dict[str, Recipe] = {
     "coarse": Recipe("none"), "multi": Recipe("multi"), "opt": Recipe("opt"), "geofusion": Recipe("full"),
     "anchored": Recipe("full", anchor=True), "seggrasp": Recipe("full", anchor=True, policy=PartPolicy()),
-    "seggrasp-nearest": Recipe("full", anchor=True, policy=PartPolicy(footprint=None)),
+    "seggrasp-nearest": Recipe("full", anchor=True, policy=PartPolicy(footprint_radius=0.0)),
     "seggrasp-agree": Recipe("full", anchor=True, on_agreement=True), "spread": Recipe("spread"),
 }
 METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "spread", "seggrasp-nearest",

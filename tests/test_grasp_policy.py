@@ -5,7 +5,6 @@ import pytest
 import trimesh
 
 from seggrasp.grasp import GraspSet
-from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.policy import PartPolicy, face_part_probabilities, one_hot, pad_probabilities, row_shares
 
 
@@ -20,10 +19,9 @@ def bar() -> tuple[trimesh.Trimesh, np.ndarray]:
 
 
 def pinches(xs: list[float], scores: list[float] | None = None) -> GraspSet:
-    """Grasps coming down from above and closing across the bar's y faces at the given x (pads 22 mm along x)."""
+    """Grasps closing across the bar's y faces at the given x."""
     contacts = np.array([[[x, -0.01, 0.0], [x, 0.01, 0.0]] for x in xs])
     poses = np.repeat(np.eye(4)[None], len(xs), axis=0)
-    poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # columns: x = +y, z = down
     poses[:, :3, 3] = contacts.mean(axis=1)
     return GraspSet(poses, np.full(len(xs), 0.02), scores if scores is not None else np.zeros(len(xs)), contacts)
 
@@ -46,19 +44,16 @@ def test_footprint_prefers_a_parts_core_over_its_border(bar) -> None:
     mesh, labels = bar
     probs = one_hot(labels, 2)
     grasps = pinches([-0.03, -0.002])  # deep inside part 0, and 2 mm from the border with part 1
-    nearest = pad_probabilities(grasps, mesh, probs, footprint=None)
-    under_pads = pad_probabilities(grasps, mesh, probs, footprint=PadFootprint())
+    nearest = pad_probabilities(grasps, mesh, probs, footprint_radius=0.0)
+    footprint = pad_probabilities(grasps, mesh, probs, footprint_radius=0.008)
     np.testing.assert_allclose(nearest[:, :, 0], 1.0)  # the nearest faces alone cannot tell them apart
-    np.testing.assert_allclose(under_pads[0, :, 0], 1.0)
-    # the 28 mm widened pads at x = -2 mm reach 12 mm into part 1 and 16 mm into part 0
-    np.testing.assert_allclose(under_pads[1, :, 0], 16 / 28, atol=0.08)
-    np.testing.assert_allclose(under_pads.sum(axis=2), 1.0)
-    p_on = PartPolicy().on_part(grasps, mesh, probs)
+    np.testing.assert_allclose(footprint[0, :, 0], 1.0)
+    assert (footprint[1, :, 0] < 0.8).all() and (footprint[1, :, 0] > 0.3).all()
+    np.testing.assert_allclose(footprint.sum(axis=2), 1.0)
+    p_on = PartPolicy(footprint_radius=0.008).on_part(grasps, mesh, probs)
     assert p_on[0, 0] > p_on[1, 0]
     with pytest.raises(ValueError, match="face probabilities"):
-        pad_probabilities(grasps, mesh, probs[:-1], PadFootprint())
-    with pytest.raises(ValueError, match="invalid pad footprint"):
-        PadFootprint(margin=-0.001)
+        pad_probabilities(grasps, mesh, probs[:-1], 0.008)
 
 
 def test_rank_fills_from_the_most_probable_region_in_score_order() -> None:

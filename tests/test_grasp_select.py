@@ -64,7 +64,7 @@ def test_top_k_per_prompt_best_first(hammer) -> None:
         select_on_part(grasps, parts, 0, top_k=0)
 
 
-def test_the_pads_must_press_on_the_part_not_on_a_wider_neighbour(hammer) -> None:
+def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighbour(hammer) -> None:
     mesh, labels = hammer
     # two grasps on the handle coming down from above and closing across it (pads 22 mm along x): one in its
     # middle, one whose contacts are on the handle 6 mm from the head, so its pads' edge reaches the wider head
@@ -79,7 +79,9 @@ def test_the_pads_must_press_on_the_part_not_on_a_wider_neighbour(hammer) -> Non
     under_pads = PadFootprint().on(mesh).pad_means(grasps, (labels == 0).astype(float)[:, None])[:, :, 0]
     np.testing.assert_allclose(under_pads[0], 1.0)
     assert (under_pads[1] < 0.1).all()  # the head stands 12.5 mm proud: the pads close on it first
-    assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())] == [[0], []]
+    # the grasp whose pads press on the handle comes first; the other still fills the request
+    assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())] == [[0, 1], []]
+    assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, 1, PadFootprint())] == [[0], []]
 
 
 def test_sampled_grasps_on_a_handle_keep_their_pads_off_the_head(hammer) -> None:

@@ -8,9 +8,9 @@ grasp is ranked by
 
     p_on(grasp, k) = p_k(pad 1) * p_k(pad 2),
 
-where p_k(pad) is the area-weighted mean probability of prompt k over the surface the pad closes on (its
-`PadFootprint`, `seggrasp.grasp.footprint`; without one, the face nearest the contact), so a grasp on a part's
-confident core outranks one on its uncertain border. The top-k are filled from the most probable region: the candidates with p_on
+where p_k(pad) is the area-weighted mean probability of prompt k over the faces under the pad's footprint (face
+centres within `footprint_radius` of the contact, plus the nearest face), so a grasp on a part's confident core
+outranks one on its uncertain border. The top-k are filled from the most probable region: the candidates with p_on
 at least `region_fraction` times the request's best come first, in the grasp generator's own order (its score
 encodes what holds physically), then the rest by p_on. A request abstains only when no candidate reaches
 `min_probability`. Measured: docs/results/grasp-selection.md.
@@ -23,10 +23,10 @@ from typing import Sequence
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from seggrasp.fusion import row_shares
-from seggrasp.grasp.footprint import PadFootprint, contact_faces
-from seggrasp.grasp.select import TOP_K
+from seggrasp.grasp.select import TOP_K, contact_faces
 from seggrasp.grasp.types import GraspSet
 
 
@@ -53,16 +53,26 @@ def face_part_probabilities(evidence: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def pad_probabilities(
-    grasps: GraspSet, mesh: trimesh.Trimesh, face_probs: np.ndarray, footprint: PadFootprint | None
+    grasps: GraspSet, mesh: trimesh.Trimesh, face_probs: np.ndarray, footprint_radius: float
 ) -> np.ndarray:
-    """(N, 2, P) per contact the area-weighted mean of `face_probs` over the surface the pad closes on, or with no
-    `footprint` the probabilities of the face nearest the contact."""
+    """(N, 2, P) per contact the area-weighted mean of `face_probs` over the faces under the pad: face centres
+    within `footprint_radius` of the contact and the nearest face (only that one for a radius of 0)."""
     face_probs = np.asarray(face_probs, dtype=np.float64)
     if face_probs.ndim != 2 or len(face_probs) != len(mesh.faces):
         raise ValueError(f"need (F, P) face probabilities for {len(mesh.faces)} faces, got {face_probs.shape}")
-    if footprint is None or len(grasps) == 0:
-        return face_probs[contact_faces(grasps, mesh)]
-    return footprint.on(mesh).pad_means(grasps, face_probs)
+    if footprint_radius < 0:
+        raise ValueError(f"footprint_radius must be >= 0, got {footprint_radius}")
+    nearest = contact_faces(grasps, mesh).reshape(-1)
+    if footprint_radius == 0 or len(nearest) == 0:
+        return face_probs[nearest].reshape(len(grasps), 2, -1)
+    areas = mesh.area_faces
+    neighbours = cKDTree(mesh.triangles_center).query_ball_point(grasps.contacts.reshape(-1, 3), footprint_radius)
+    pads = np.empty((len(nearest), face_probs.shape[1]))
+    for i, (faces, face) in enumerate(zip(neighbours, nearest)):
+        under = np.asarray([*faces, face], dtype=np.int64)
+        weights = areas[under]
+        pads[i] = weights @ face_probs[under] / max(float(weights.sum()), 1e-18)
+    return pads.reshape(len(grasps), 2, -1)
 
 
 @dataclass(frozen=True)
@@ -70,17 +80,18 @@ class PartPolicy:
     """How grasps are chosen per prompt from per-face probabilities (module docstring). The defaults were chosen
     on the twin's seeds 0 and 1 (docs/results/grasp-selection.md)."""
 
-    footprint: PadFootprint | None = PadFootprint()
+    footprint_radius: float = 0.008  # m; about half a 22 mm pad
     region_fraction: float = 0.65
     min_probability: float = 0.05
 
     def __post_init__(self) -> None:
-        if not 0 <= self.region_fraction <= 1 or not 0 <= self.min_probability < 1:
-            raise ValueError(f"invalid policy {self}: need region_fraction and min_probability in [0, 1]")
+        if self.footprint_radius < 0 or not 0 <= self.region_fraction <= 1 or not 0 <= self.min_probability < 1:
+            raise ValueError(f"invalid policy {self}: need footprint_radius >= 0, region_fraction and "
+                             "min_probability in [0, 1]")
 
     def on_part(self, grasps: GraspSet, mesh: trimesh.Trimesh, face_probs: np.ndarray) -> np.ndarray:
         """(N, P) probability that both pads of each grasp land on each prompt's part."""
-        pads = pad_probabilities(grasps, mesh, face_probs, self.footprint)
+        pads = pad_probabilities(grasps, mesh, face_probs, self.footprint_radius)
         return pads[:, 0] * pads[:, 1]
 
     def rank(self, p_on: np.ndarray, scores: np.ndarray, top_k: int = TOP_K) -> np.ndarray:

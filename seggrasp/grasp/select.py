@@ -3,8 +3,9 @@
 A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts
 and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
 never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
-the prompted part. With a `PadFootprint`, a grasp is also kept only where each pad presses mostly on the part
-(`seggrasp.grasp.footprint`): two contacts on a wine glass's stem say nothing of the bowl under the pads' edge.
+the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part come first
+(`seggrasp.grasp.footprint`: two contacts on a wine glass's stem say nothing of the bowl under the pads' edge); the
+others fill the top-k only where too few do, so the check never leaves a request with fewer grasps.
 """
 
 from __future__ import annotations
@@ -50,8 +51,9 @@ def select_per_prompt(
     grasps: GraspSet, mesh: trimesh.Trimesh, face_labels: np.ndarray, n_prompts: int, top_k: int = TOP_K,
     footprint: PadFootprint | None = None,
 ) -> list[np.ndarray]:
-    """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none);
-    with a `footprint`, only grasps whose pads each press on at least its `min_share` of faces labelled k."""
+    """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none),
+    best first; with a `footprint`, those whose pads each press on at least its `min_share` of faces labelled k
+    first, then the others."""
     parts = assign_parts(grasps, mesh, face_labels)
     if footprint is None:
         return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]
@@ -60,12 +62,14 @@ def select_per_prompt(
     for k in range(n_prompts):
         ranked = select_on_part(grasps, parts, k, top_k=max(len(grasps), 1))
         is_part = (labels == k).astype(np.float64)[:, None]
-        kept: list[int] = []
+        pressing: list[int] = []
+        others: list[int] = []
         for start in range(0, len(ranked), FOOTPRINT_CHUNK):
-            if len(kept) >= top_k:
+            if len(pressing) >= top_k:
                 break
             block = ranked[start : start + FOOTPRINT_CHUNK]
-            shares = surface.pad_means(grasps.subset(block), is_part)[:, :, 0]
-            kept += block[(shares >= footprint.min_share).all(axis=1)].tolist()
-        chosen.append(np.asarray(kept[:top_k], dtype=np.int64))
+            on_part = (surface.pad_means(grasps.subset(block), is_part)[:, :, 0] >= footprint.min_share).all(axis=1)
+            pressing += block[on_part].tolist()
+            others += block[~on_part].tolist()
+        chosen.append(np.asarray((pressing + others)[:top_k], dtype=np.int64))
     return chosen
