@@ -32,8 +32,8 @@ def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
 @dataclass(frozen=True)
 class PadFootprint:
     """The surface under each pad of a grasp (module docstring). Sizes in metres; `min_share` is the share of the
-    prompted part each pad must press on for label-based selection to keep the grasp (the twin judges a lift on
-    the part the pads press on most, `seggrasp.truth.GroundTruth.touched_on_part`)."""
+    prompted part each pad must press on for label-based selection to rank the grasp first (the twin judges a lift
+    on the part the pads press on most, `seggrasp.truth.GroundTruth.touched_on_part`)."""
 
     margin: float = 0.003
     tolerance: float = 0.002
