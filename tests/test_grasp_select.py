@@ -84,7 +84,7 @@ def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighb
     assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, 1, PadFootprint())] == [[0], []]
 
 
-def test_sampled_grasps_on_a_handle_keep_their_pads_off_the_head(hammer) -> None:
+def test_sampled_grasps_keep_their_pads_on_their_own_part(hammer) -> None:
     mesh, labels = hammer
     grasps = AntipodalSampler().generate(mesh, seed=1)
     plain = select_per_prompt(grasps, mesh, labels, n_prompts=2, top_k=10)
