@@ -84,6 +84,12 @@ class AntipodalConfig:
     # a level pose (`_level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
     # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
     level_facing_deg: float = 18.0
+    # envelope poses (`_envelope_poses`): straight-down poses closing level with the table around everything the
+    # fingers would straddle on a line through one of `envelope_centres` surface points, in `envelope_directions`
+    # directions (0 centres: none); how a 2F-85 picks a ring, a frame or a flat cluster whose walls are too thin or
+    # whose holes are too small for a finger (scissors handles lying flat), held from outside
+    envelope_centres: int = 256
+    envelope_directions: int = 8
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
     # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
     # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
@@ -109,6 +115,8 @@ class AntipodalConfig:
                 raise ValueError(f"{name} must lie on the pad (|d| < {self.pad_half_length}), got {depths}")
         if min(self.pinch_table_clearance, self.pinch_min_band, self.pinch_band_tolerance) < 0:
             raise ValueError("pinch_table_clearance, pinch_min_band and pinch_band_tolerance must not be negative")
+        if self.envelope_centres < 0 or self.envelope_directions < 1:
+            raise ValueError("envelope_centres must not be negative and envelope_directions must be at least 1")
         if not 0 <= self.pinch_max_tilt_deg <= 90:
             raise ValueError(f"pinch_max_tilt_deg must be in [0, 90], got {self.pinch_max_tilt_deg}")
 
@@ -156,34 +164,54 @@ class AntipodalSampler:
         pairs = self._friction_cone_pairs(mesh, face_normals, com, rng)
         if pairs is None:
             LOG.info("antipodal sampler: no contact pair inside the friction cone")
-            return GraspSet.empty()
+            empty = np.zeros((0, 3))
+            pairs = (empty, empty, empty, np.zeros(0), np.zeros(0))
         p, q, axis, width, antipodality = pairs
 
-        axis_poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
+        poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
-        is_level = np.zeros(len(axis_poses), dtype=bool)
+        from_sweep = np.zeros(len(poses), dtype=bool)
         if plane is not None:
             level, level_pairs = _level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
-            axis_poses, pair_of = np.concatenate([axis_poses, level]), np.concatenate([pair_of, level_pairs])
-            is_level = np.r_[is_level, np.ones(len(level), dtype=bool)]
+            poses, pair_of = np.concatenate([poses, level]), np.concatenate([pair_of, level_pairs])
+            from_sweep = np.r_[from_sweep, np.ones(len(level), dtype=bool)]
         widths = width[pair_of]
-        openings = self.gripper.pre_grasp_opening(widths)
+        contacts = np.stack([p[pair_of], q[pair_of]], axis=1)
+        pose_antipodality = antipodality[pair_of]
         cloud, cloud_normals = _collision_cloud(mesh, normals_sign, cfg, int(rng.integers(2**31)))
-        depth_index = self._deepest_free_depths(axis_poses, openings, widths, plane, cloud)
+        is_envelope = np.zeros(len(poses), dtype=bool)
+        if plane is not None and cfg.envelope_centres:
+            envelope, envelope_widths = _envelope_poses(cloud, plane, self.gripper, cfg)
+            half = 0.5 * envelope_widths[:, None] * envelope[:, :3, 0]
+            poses = np.concatenate([poses, envelope])
+            widths = np.r_[widths, envelope_widths]
+            contacts = np.concatenate([contacts, np.stack([envelope[:, :3, 3] - half, envelope[:, :3, 3] + half], 1)])
+            pose_antipodality = np.r_[pose_antipodality, np.zeros(len(envelope))]
+            from_sweep = np.r_[from_sweep, np.ones(len(envelope), dtype=bool)]
+            is_envelope = np.r_[is_envelope, np.ones(len(envelope), dtype=bool)]
+        if not len(poses):
+            return GraspSet.empty()
+        openings = self.gripper.pre_grasp_opening(widths)
+        depth_index = self._deepest_free_depths(poses, openings, widths, plane, cloud)
         free = depth_index >= 0
         if not free.any():
             LOG.info("antipodal sampler: every candidate pose collides")
             return GraspSet.empty()
         contact_depth = cfg.all_contact_depths[depth_index[free]]
-        poses, openings = axis_poses[free].copy(), openings[free]
+        poses, openings, contacts = poses[free].copy(), openings[free], contacts[free]
+        pose_antipodality, from_sweep, is_envelope = pose_antipodality[free], from_sweep[free], is_envelope[free]
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
-        contacts = np.stack([p[pair_of[free]], q[pair_of[free]]], axis=1)
-        widths, facing = self._apply_footprint(
-            poses, contacts, widths[free].copy(), openings, cloud, cloud_normals, is_level[free]
+        widths, alignment = self._apply_footprint(
+            poses, contacts, widths[free].copy(), openings, cloud, cloud_normals, from_sweep
         )
-        # the footprint may be wider than the stroke; a level pose must meet surface facing its pads; a pinch must
-        # touch the part over `pinch_min_band` of its pads
-        fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~is_level[free])
+        # an envelope is as antipodal as the surface its pads first touch
+        half_angle = float(np.arctan(cfg.friction_coefficient))
+        pose_antipodality[is_envelope] = np.clip(
+            1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)
+        # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; a pinch
+        # must touch the part over `pinch_min_band` of its pads
+        facing = alignment >= np.cos(np.deg2rad(cfg.level_facing_deg))
+        fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~from_sweep)
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
@@ -193,14 +221,14 @@ class AntipodalSampler:
             ])
             fits[pinch] = bands >= cfg.pinch_min_band
         poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
-        contact_depth, pair_index = contact_depth[fits], pair_of[free][fits]
+        contact_depth, pose_antipodality = contact_depth[fits], pose_antipodality[fits]
         if not len(poses):
             return GraspSet.empty()
-        score = self._score(mesh, poses, com, antipodality[pair_index], contact_depth, plane, mass)
+        score = self._score(mesh, poses, com, pose_antipodality, contact_depth, plane, mass)
         grasps = GraspSet(poses, widths, score, contacts).sorted_by_score()
         if cfg.max_grasps is not None:
             grasps = grasps.subset(np.arange(min(cfg.max_grasps, len(grasps))))
-        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(axis_poses), len(grasps))
+        LOG.debug("antipodal sampler: %d pairs, %d poses, %d collision-free", len(p), len(free), len(grasps))
         return grasps
 
     def _friction_cone_pairs(
@@ -273,20 +301,20 @@ class AntipodalSampler:
         cloud_normals: np.ndarray, from_sweep: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
-        contact pair, or for the poses `from_sweep` (not aimed at their pair's contacts) always, the pads stop on
+        contact pair, or for the poses `from_sweep` (not aimed at a pair's contacts) always, the pads stop on
         the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
-        they give and whether the surface at both outermost points faces the pads within `level_facing_deg` (poses
-        and contacts are updated in place)."""
+        they give and, per pose, how well the surface at the worse of the two outermost points faces its pad (the
+        cosine of the angle between its outward normal and the pad's closing direction); poses and contacts are
+        updated in place."""
         cfg = self.config
-        facing = np.zeros(len(poses), dtype=bool)
-        cos_cone = np.cos(np.deg2rad(cfg.level_facing_deg))
+        alignment = np.full(len(poses), -1.0)
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
             span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
                                                     -cfg.pad_half_length, cfg.pad_half_length)
             x_axis = poses[sl, :3, 0]
-            facing[sl] = (np.einsum("ij,ij->i", cloud_normals[low], x_axis) <= -cos_cone) & (
-                np.einsum("ij,ij->i", cloud_normals[high], x_axis) >= cos_cone)
+            alignment[sl] = np.where(np.isnan(span), -1.0, np.minimum(
+                -np.einsum("ij,ij->i", cloud_normals[low], x_axis), np.einsum("ij,ij->i", cloud_normals[high], x_axis)))
             wider = (span > widths[sl] + 2.0 * cfg.footprint_tolerance) | (from_sweep[sl] & (span > 0.0))
             index = np.flatnonzero(wider) + start
             if len(index):
@@ -294,7 +322,7 @@ class AntipodalSampler:
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
-        return widths, facing
+        return widths, alignment
 
     def _collision_free(
         self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
@@ -487,6 +515,65 @@ def _level_poses(
     poses[:, :3, 3] = 0.5 * (p[pairs] + q[pairs])
     poses[:, 3, 3] = 1.0
     return poses, pairs
+
+
+def _envelope_poses(
+    cloud: np.ndarray, plane: np.ndarray, gripper: GripperGeometry, cfg: AntipodalConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Straight-down poses closing level with the table around the whole cluster of surface that lies under the
+    fingers on a line through each of `envelope_centres` points of `cloud`, in `envelope_directions` directions,
+    and the clusters' widths. Along the line, the points within a finger's half width of it (any height) split into
+    clusters where a gap leaves room for a finger and its approach margin; the cluster holding the centre point, if it
+    fits the stroke, gets a pose at its middle, halfway up it. A hole narrower than a finger does not split a cluster:
+    the pads then close on its outer walls."""
+    up = plane[:3]
+    reach = gripper.max_opening - cfg.width_margin
+    half_y = max(box[2] for box in gripper.finger_boxes)
+    split_gap = max(box[1] for box in gripper.finger_boxes) + gripper.pre_grasp_margin
+    lowest = cfg.pinch_table_clearance + gripper.tip_beyond_origin - max(cfg.pinch_contact_depths, default=0.0) + 1e-4
+    helper = np.eye(3)[np.argmin(np.abs(up))]
+    u = np.cross(up, helper)
+    u /= np.linalg.norm(u)
+    angles = np.pi * np.arange(cfg.envelope_directions) / cfg.envelope_directions
+    directions = np.cos(angles)[:, None] * u + np.sin(angles)[:, None] * np.cross(up, u)
+    centres = cloud[np.unique(np.linspace(0, len(cloud) - 1, min(cfg.envelope_centres, len(cloud))).astype(int))]
+    heights = cloud @ up + plane[3]
+    poses, widths = [], []
+    for direction in directions:
+        across = np.cross(up, direction)
+        for chunk in np.array_split(centres, -(-len(centres) // 64)):
+            relative = cloud[None] - chunk[:, None]  # (C, M, 3)
+            x, y = relative @ direction, relative @ across
+            column = (np.abs(y) <= half_y) & (np.abs(x) <= reach + split_gap)  # a cluster running out is too wide
+            order = np.argsort(np.where(column, x, np.inf), axis=1)
+            xs = np.take_along_axis(np.where(column, x, np.inf), order, axis=1)
+            centre_index = (xs < 0.0).sum(axis=1, keepdims=True)  # the centre itself has x = 0
+            with np.errstate(invalid="ignore"):
+                split = ~(np.diff(xs, axis=1) < split_gap)  # a wide gap, or the end of the column
+            index = np.arange(xs.shape[1] - 1)[None]
+            last = np.where(split & (index >= centre_index), index, xs.shape[1] - 1).min(axis=1)
+            first = np.where(split & (index < centre_index), index, -1).max(axis=1) + 1
+            rows = np.arange(len(chunk))
+            low, high = xs[rows, first], xs[rows, last]
+            member = column & (x >= low[:, None]) & (x <= high[:, None])
+            bottom = np.where(member, heights[None], np.inf).min(axis=1)
+            top = np.where(member, heights[None], -np.inf).max(axis=1)
+            keep = np.isfinite(high) & (high - low >= cfg.min_width) & (high - low <= reach)
+            origin = chunk + 0.5 * (low + high)[:, None] * direction
+            # halfway up the cluster, but no lower than the deepest pinch reaches with its fingertips clear
+            height = np.maximum(0.5 * (bottom + top), lowest)
+            origin += (height - (origin @ up + plane[3]))[:, None] * up
+            pose = np.tile(np.eye(4), (int(keep.sum()), 1, 1))
+            pose[:, :3, 0], pose[:, :3, 1], pose[:, :3, 2] = direction, np.cross(-up, direction), -up
+            pose[:, :3, 3] = origin[keep]
+            poses.append(pose)
+            widths.append((high - low)[keep])
+    poses, widths = np.concatenate(poses), np.concatenate(widths)
+    # many centres on one cluster give the same pose: keep one per millimetre of origin and width, per direction
+    key = np.c_[np.round(poses[:, :3, 3] / 1e-3), np.round(widths / 1e-3), np.round(poses[:, :3, 0] * 1e3)]
+    _, unique = np.unique(key, axis=0, return_index=True)
+    unique.sort()
+    return poses[unique], widths[unique]
 
 
 def _collision_cloud(
