@@ -110,13 +110,30 @@ def test_flat_bar_on_the_table_is_grasped_from_above_near_the_fingertips() -> No
     assert np.all(g.poses[:, 2, 2] < -0.5)  # from above
 
 
-def test_ring_grasps_do_not_close_across_the_hole() -> None:
+def test_ring_is_held_by_its_wall_or_around_its_outside_never_from_inside_the_hole() -> None:
     ring = _on_table(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.05, sections=64))
     g = AntipodalSampler().generate(ring, seed=1, table_plane=TABLE)
     assert len(g) > 0
-    # every grasp pinches the 10 mm wall (the flat 22 mm pads also span the wall's curvature, which the footprint
-    # adds), never the 80 mm outer diameter through the hole
-    assert g.widths.max() < 0.03
+    # a grasp pinches the 10 mm wall (the flat 22 mm pads also span the wall's curvature, which the footprint adds)
+    # or closes from outside on the 80 mm outer wall; a pad never stops on the inner wall across the hole
+    radius = np.linalg.norm(g.contacts[..., :2], axis=-1)
+    across = g.widths >= 0.03
+    assert (g.widths[~across] < 0.03).all() and across.any()
+    assert radius[across].min() > 0.037
+
+
+def test_ring_lying_flat_with_a_hole_too_small_for_a_finger_is_held_from_outside() -> None:
+    # a scissors handle: a 26 mm ring, 8 mm tall, whose 16 mm hole no 2F-85 finger enters
+    ring = _on_table(trimesh.creation.annulus(r_min=0.008, r_max=0.013, height=0.008, sections=64))
+    assert len(AntipodalSampler(AntipodalConfig(envelope_centres=0)).generate(ring, seed=0, table_plane=TABLE)) == 0
+    g = AntipodalSampler().generate(ring, seed=0, table_plane=TABLE)
+    assert len(g) > 0
+    assert np.all(g.poses[:, 2, 2] < -0.99)  # straight down
+    np.testing.assert_allclose(g.widths, 0.026, atol=0.0015)
+    assert np.linalg.norm(g.contacts[..., :2], axis=-1).min() > 0.0115  # on the outer wall
+    # the fingertips stay above the table
+    tips = g.poses[:, 2, 3] + g.poses[:, 2, 2] * ROBOTIQ_2F85.tip_beyond_origin
+    assert tips.min() > 0.0
 
 
 def _hammer() -> tuple[trimesh.Trimesh, np.ndarray, float]:
