@@ -7,6 +7,9 @@
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z); with a table plane, a
    pair tilted a little from the table also gets a straight-down pose closing level with the table across its
    middle (`_level_poses`: a round handle lying flat is held across its widest section, with a line contact).
+   With a table plane, envelope poses (`_envelope_poses`) come straight down closing level with the table around
+   a whole cluster of surface, found along lines through surface points: what a finger cannot get between (a
+   scissors ring whose hole is narrower than a finger, a pair of rings) is held from outside.
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
    from near the palm end to near the tip, never within 6.75 mm of either end) and keeps the deepest
    at which no finger, palm or wrist box contains object surface points (a dense surface sample) and no box dips
@@ -17,7 +20,8 @@
    only where both pads touch the part over `pinch_min_band` of their length.
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
-   between them. A level pose is kept only if the surface there faces the pads (`level_facing_deg`).
+   between them. A level or envelope pose is kept only if the surface there faces the pads (`level_facing_deg`);
+   an envelope's antipodality is measured from that surface.
 7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
    cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
    grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
