@@ -208,7 +208,11 @@ class AntipodalSampler:
         widths, alignment = self._apply_footprint(
             poses, contacts, widths[free].copy(), openings, cloud, cloud_normals, from_sweep
         )
-        # an envelope is as antipodal as the surface its pads first touch
+        # an envelope's contacts are the middle of what each pad presses on (its outermost point may be anywhere on a
+        # wall), and it is as antipodal as the surface its pads first touch
+        envelope_index = np.flatnonzero(is_envelope)
+        for chunk in np.array_split(envelope_index, max(1, -(-len(envelope_index) // COLLISION_CHUNK))):
+            contacts[chunk] = _pressed_centres(poses[chunk], openings[chunk], cloud, cfg)
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
             1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)
@@ -435,6 +439,18 @@ def _pad_bands(
     return np.minimum(*bands)
 
 
+def _pressed_centres(poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, cfg: AntipodalConfig) -> np.ndarray:
+    """Per pose, the centre of the surface points each pad presses on (`pad_touches` within
+    `pinch_band_tolerance` of its first touch): (G, 2, 3), -x pad first; NaN where a pad touches nothing."""
+    low_pad, high_pad, _ = pad_touches(poses, openings, cloud, cfg.pad_half_width, cfg.pad_half_length,
+                                       cfg.pinch_band_tolerance)
+    centres = []
+    for touching in (low_pad, high_pad):
+        with np.errstate(invalid="ignore"):
+            centres.append((touching @ cloud) / touching.sum(axis=1, keepdims=True))
+    return np.stack(centres, axis=1)
+
+
 def pad_contacts(
     poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
     half_width: float = AntipodalConfig.pad_half_width, half_length: float = AntipodalConfig.pad_half_length,
@@ -528,13 +544,15 @@ def _envelope_poses(
     fingers on a line through each of `envelope_centres` points of `cloud`, in `envelope_directions` directions,
     and the clusters' widths. Along the line, the points within a finger's half width of it (any height) split into
     clusters where a gap leaves room for a finger and its approach margin; the cluster holding the centre point, if it
-    fits the stroke, gets a pose at its middle, halfway up it. A hole narrower than a finger does not split a cluster:
+    fits the stroke, gets a pose at its middle, halfway up it or as low as the deepest pinch reaches. A hole narrower than a finger does not split a cluster:
     the pads then close on its outer walls."""
     up = plane[:3]
     reach = gripper.max_opening - cfg.width_margin
     half_y = max(box[2] for box in gripper.finger_boxes)
     split_gap = max(box[1] for box in gripper.finger_boxes) + gripper.pre_grasp_margin
-    lowest = cfg.pinch_table_clearance + gripper.tip_beyond_origin - max(cfg.pinch_contact_depths, default=0.0) + 1e-4
+    # no lower than the deepest pinch reaches with its fingertips clear (without pinches, no lower than halfway up)
+    lowest = (cfg.pinch_table_clearance + gripper.tip_beyond_origin - max(cfg.pinch_contact_depths) + 1e-4
+              if cfg.pinch_contact_depths else -np.inf)
     helper = np.eye(3)[np.argmin(np.abs(up))]
     u = np.cross(up, helper)
     u /= np.linalg.norm(u)
@@ -564,7 +582,6 @@ def _envelope_poses(
             top = np.where(member, heights[None], -np.inf).max(axis=1)
             keep = np.isfinite(high) & (high - low >= cfg.min_width) & (high - low <= reach)
             origin = chunk + 0.5 * (low + high)[:, None] * direction
-            # halfway up the cluster, but no lower than the deepest pinch reaches with its fingertips clear
             height = np.maximum(0.5 * (bottom + top), lowest)
             origin += (height - (origin @ up + plane[3]))[:, None] * up
             pose = np.tile(np.eye(4), (int(keep.sum()), 1, 1))
