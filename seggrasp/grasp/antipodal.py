@@ -50,6 +50,8 @@ RAY_EPSILON = 1e-5
 COLLISION_CHUNK = 256
 #: Every this many collision points form the sparse first pass of the collision test.
 COARSE_STRIDE = 8
+#: Envelope line centres whose clusters are found in one vectorised block (memory: this x cloud x 3 floats).
+ENVELOPE_CHUNK = 64
 
 
 @dataclass(frozen=True)
@@ -186,10 +188,10 @@ class AntipodalSampler:
         is_envelope = np.zeros(len(poses), dtype=bool)
         if plane is not None and cfg.envelope_centres:
             envelope, envelope_widths = _envelope_poses(cloud, plane, self.gripper, cfg)
-            half = 0.5 * envelope_widths[:, None] * envelope[:, :3, 0]
             poses = np.concatenate([poses, envelope])
             widths = np.r_[widths, envelope_widths]
-            contacts = np.concatenate([contacts, np.stack([envelope[:, :3, 3] - half, envelope[:, :3, 3] + half], 1)])
+            # an envelope's contacts and antipodality come from what its pads press on, found below
+            contacts = np.concatenate([contacts, np.full((len(envelope), 2, 3), np.nan)])
             pose_antipodality = np.r_[pose_antipodality, np.zeros(len(envelope))]
             from_sweep = np.r_[from_sweep, np.ones(len(envelope), dtype=bool)]
             is_envelope = np.r_[is_envelope, np.ones(len(envelope), dtype=bool)]
@@ -211,7 +213,8 @@ class AntipodalSampler:
         # an envelope's contacts are the middle of what each pad presses on (its outermost point may be anywhere on a
         # wall), and it is as antipodal as the surface its pads first touch
         envelope_index = np.flatnonzero(is_envelope)
-        for chunk in np.array_split(envelope_index, max(1, -(-len(envelope_index) // COLLISION_CHUNK))):
+        for start in range(0, len(envelope_index), COLLISION_CHUNK):
+            chunk = envelope_index[start : start + COLLISION_CHUNK]
             contacts[chunk] = _pressed_centres(poses[chunk], openings[chunk], cloud, cfg)
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
@@ -544,8 +547,8 @@ def _envelope_poses(
     fingers on a line through each of `envelope_centres` points of `cloud`, in `envelope_directions` directions,
     and the clusters' widths. Along the line, the points within a finger's half width of it (any height) split into
     clusters where a gap leaves room for a finger and its approach margin; the cluster holding the centre point, if it
-    fits the stroke, gets a pose at its middle, halfway up it or as low as the deepest pinch reaches. A hole narrower than a finger does not split a cluster:
-    the pads then close on its outer walls."""
+    fits the stroke, gets a pose at its middle, halfway up it or as low as the deepest pinch reaches. A hole narrower
+    than a finger does not split a cluster: the pads then close on its outer walls."""
     up = plane[:3]
     reach = gripper.max_opening - cfg.width_margin
     half_y = max(box[2] for box in gripper.finger_boxes)
@@ -563,12 +566,11 @@ def _envelope_poses(
     poses, widths = [], []
     for direction in directions:
         across = np.cross(up, direction)
-        for chunk in np.array_split(centres, -(-len(centres) // 64)):
+        for chunk in np.array_split(centres, -(-len(centres) // ENVELOPE_CHUNK)):
             relative = cloud[None] - chunk[:, None]  # (C, M, 3)
             x, y = relative @ direction, relative @ across
             column = (np.abs(y) <= half_y) & (np.abs(x) <= reach + split_gap)  # a cluster running out is too wide
-            order = np.argsort(np.where(column, x, np.inf), axis=1)
-            xs = np.take_along_axis(np.where(column, x, np.inf), order, axis=1)
+            xs = np.sort(np.where(column, x, np.inf), axis=1)
             centre_index = (xs < 0.0).sum(axis=1, keepdims=True)  # the centre itself has x = 0
             with np.errstate(invalid="ignore"):
                 split = ~(np.diff(xs, axis=1) < split_gap)  # a wide gap, or the end of the column
