@@ -43,9 +43,11 @@ def recorded_grasps(run: Path, object_id: str, prompt: str, seed: int, limit: in
     return sorted(rows, key=lambda r: (r["method"], r["rank"]))[:limit]
 
 
-def replay(model, rows: list[dict], iterations: int, force: float) -> tuple[collections.Counter, float]:
-    """Outcomes (failure name, "lifted" for success) of the recorded grasps and the median wall time of a trial."""
-    outcomes, times = collections.Counter(), []
+def replay(model, rows: list[dict], iterations: int, force: float) -> tuple[collections.Counter, float, float]:
+    """Outcomes (failure name, "lifted" for success) of the recorded grasps, the median wall time of a trial and the
+    median squeeze the pads delivered at the end of the hold (half the summed normal force of both pads, N; NaN if
+    no grasp was held)."""
+    outcomes, times, squeezes = collections.Counter(), [], []
     physics = PhysicsSettings(solver_iterations=iterations, light_object_iterations=None)
     with SimCell([model], embodiment="arm", seed=0, image_size=(64, 48), physics=physics,
                  gripper=GripperSettings(force)) as cell:
@@ -55,7 +57,9 @@ def replay(model, rows: list[dict], iterations: int, force: float) -> tuple[coll
             outcome = cell.execute(np.array(row["T_world_grasp"]), row["width"])
             times.append(time.perf_counter() - start)
             outcomes[outcome.failure or "lifted"] += 1
-    return outcomes, float(np.median(times))
+            if outcome.contact_force > 0:
+                squeezes.append(0.5 * outcome.contact_force)
+    return outcomes, float(np.median(times)), float(np.median(squeezes)) if squeezes else float("nan")
 
 
 def main() -> None:
@@ -76,17 +80,17 @@ def main() -> None:
     if unknown:
         parser.error(f"unknown object id(s) {unknown}")
     logging.basicConfig(level=logging.WARNING)
-    lines = ["| object | grasps | iterations | force (N) | lifted | failures | trial (s, median) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = ["| object | grasps | iterations | force (N) | squeeze delivered (N, median) | lifted | failures "
+             "| trial (s, median) |", "|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)
     for object_id in args.objects.split(","):
         rows = recorded_grasps(args.run, object_id, args.prompt, args.seed, args.limit)
         if not rows:
             parser.error(f"no executed {object_id} / {args.prompt} trial at seed {args.seed} in {args.run}")
         for iterations, force in args.settings:
-            outcomes, trial_s = replay(models[object_id], rows, iterations, force)
+            outcomes, trial_s, squeeze = replay(models[object_id], rows, iterations, force)
             failures = ", ".join(f"{name} {n}" for name, n in sorted(outcomes.items()) if name != "lifted") or "-"
-            lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {outcomes['lifted']} | {failures} "
+            lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {squeeze:.0f} | {outcomes['lifted']} | {failures} "
                          f"| {trial_s:.2f} |")
             print(lines[-1], flush=True)
     if args.out is not None:
