@@ -100,3 +100,20 @@ def test_each_pad_squeezes_with_the_grip_force_setting(force):
     """Issue 12: the linkage's fingers stopped near 100 N whatever the setting at 100 solver iterations; the fingers
     on slides deliver it."""
     assert _squeeze(force) == pytest.approx(2 * force, rel=0.05)
+
+
+@pytest.mark.parametrize("mass", [0.02, 0.5])
+@pytest.mark.parametrize("force", [GRIP_FORCE_RANGE[0], GRIP_FORCE_RANGE[1]])
+def test_the_pads_still_squeeze_with_the_grip_force_at_the_end_of_an_arm_lift(tmp_path, mass, force):
+    """Issue 12: closing was a velocity motor limited at the grip force, and the solver delivered 40-85 N of a
+    100-235 N setting while the arm lifted and held (less on light objects, which then crept out of the fingers);
+    once the fingers stall they now push with the setting itself, like the 2F-85's motor."""
+    from sim.cell import SimCell
+    from sim.primitives import primitive_object, top_down_grasp
+
+    box = primitive_object("box", (0.02, 0.04, 0.05), tmp_path, mass=mass, friction=0.5, object_id="box")
+    with SimCell([box], embodiment="arm", seed=0, image_size=(64, 48), gripper=GripperSettings(force)) as cell:
+        _, T_world_obj = cell.object_mesh()
+        outcome = cell.execute(top_down_grasp(T_world_obj, 0.035), 0.02)
+    assert outcome.lifted, outcome.message
+    assert 0.5 * outcome.contact_force == pytest.approx(force, rel=0.05)  # contact_force sums both pads
