@@ -5,8 +5,9 @@ the outer knuckle's pivot without turning it. The description (assets/robots/) h
 of revolute joints, which PyBullet's iterative solver does not converge under a squeeze: at 100 iterations the
 pads splayed 3.5-5 deg apart, a thin shaft rolled between them and the grip force never exceeded ~100 N
 (docs/results/twin-physics-round4-roll.md). `simulated_urdf` therefore re-hangs each inner finger from the gripper
-body on two prismatic joints traced from the linkage's own kinematics: a closing slide (actuated, velocity control
-with the grip force as its force limit, as the 2F-85's motor squeezes) and a lift (servoed to the arc's height for
+body on two prismatic joints traced from the linkage's own kinematics: a closing slide (actuated: velocity control
+at the closing speed with the grip force as its limit until the fingers stall, then pushed with the grip force
+itself, as the 2F-85's motor squeezes; `Robotiq2F85.squeeze`) and a lift (servoed to the arc's height for
 the slide's travel). The pads keep the 2F-85's geometry and arc, stay parallel by construction, and the squeeze
 passes one joint to the gripper body. The knuckles and outer fingers stay as servoed followers of the arc's angle:
 they are seen by the cameras and collide, but carry no squeeze.
@@ -55,8 +56,9 @@ KNUCKLE_MAX = 0.8
 MAX_WIDTH = 0.085
 #: Mass (kg) of each slide's carriage: the finger drive's effective mass. The 2F-85's motor drives the fingers
 #: through a self-locking gear, so a contact impulse meets the rotor's inertia times the squared gear ratio, not a
-#: 15 g fingertip; with only the linkage's 58 g on the slide the solver (100 iterations) delivered about 130 N of a
-#: 235 N setting, with 0.5 kg all of it. Its weight is cancelled every step (`Robotiq2F85._drive_fingers`).
+#: 15 g fingertip; with only the linkage's 58 g on the slide the closing velocity motor (100 iterations) pressed a
+#: box resting on the table with about 130 N of a 235 N setting, with 0.5 kg all of it (the squeeze that holds a
+#: lifted object is `Robotiq2F85.squeeze`). Its weight is cancelled every step (`Robotiq2F85._drive_fingers`).
 CARRIAGE_MASS = 0.5
 #: Force limit (N) and error reduction of the constraint that makes both slides travel together.
 COUPLING_FORCE = 10000.0
@@ -78,8 +80,8 @@ PAD_ROLLING_FRICTION = 0.0001
 
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) is the force limit of each
-    velocity-controlled closing slide; closing speed (m/s per pad: the datasheet's 20-150 mm/s), stall detection,
+    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) limits each closing slide's
+    velocity motor and is the force each slide pushes with once the fingers stall; closing speed (m/s per pad: the datasheet's 20-150 mm/s), stall detection,
     and the servo forces of the lifts and the knuckle followers."""
 
     grip_force: float = DEFAULT_GRIP_FORCE
