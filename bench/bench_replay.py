@@ -90,8 +90,8 @@ def main() -> None:
         for iterations, force in args.settings:
             outcomes, trial_s, squeeze = replay(models[object_id], rows, iterations, force)
             failures = ", ".join(f"{name} {n}" for name, n in sorted(outcomes.items()) if name != "lifted") or "-"
-            lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {squeeze:.0f} | {outcomes['lifted']} | {failures} "
-                         f"| {trial_s:.2f} |")
+            lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {squeeze:.0f} "
+                         f"| {outcomes['lifted']} | {failures} | {trial_s:.2f} |")
             print(lines[-1], flush=True)
     if args.out is not None:
         command = (f"python bench/bench_replay.py --run {args.run} --objects {args.objects} --prompt {args.prompt} "

@@ -81,8 +81,8 @@ PAD_ROLLING_FRICTION = 0.0001
 @dataclass(frozen=True)
 class GripperSettings:
     """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) limits each closing slide's
-    velocity motor and is the force each slide pushes with once the fingers stall; closing speed (m/s per pad: the datasheet's 20-150 mm/s), stall detection,
-    and the servo forces of the lifts and the knuckle followers."""
+    velocity motor and is the force each slide pushes with once the fingers stall; closing speed (m/s per pad: the
+    datasheet's 20-150 mm/s), stall detection, and the servo forces of the lifts and the knuckle followers."""
 
     grip_force: float = DEFAULT_GRIP_FORCE
     closing_speed: float = 0.075
@@ -392,11 +392,11 @@ class Robotiq2F85:
 
         A velocity motor with the grip force as its limit reaches that force only when the solver converges: it
         gains at most a carriage's mass times the closing speed per iteration, and a light object between the pads
-        passes on its own mass times that. At 100-300 iterations the pads squeezed 50-85 N of a 235 N setting, and
+        passes on its own mass times that. At 100-300 iterations the pads squeezed 30-100 N of a 235 N setting, and
         light objects crept out of the fingers (`bench/bench_replay.py`). The force itself is exact every step."""
         self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
                                                     targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])
-        self._closing = self._squeezing = True
+        self._squeezing = True
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
         """Close until both fingers stall (contact: from then on they `squeeze`) or the gripper is shut; returns the

@@ -105,7 +105,7 @@ def test_each_pad_squeezes_with_the_grip_force_setting(force):
 @pytest.mark.parametrize("mass", [0.02, 0.5])
 @pytest.mark.parametrize("force", [GRIP_FORCE_RANGE[0], GRIP_FORCE_RANGE[1]])
 def test_the_pads_still_squeeze_with_the_grip_force_at_the_end_of_an_arm_lift(tmp_path, mass, force):
-    """Issue 12: closing was a velocity motor limited at the grip force, and the solver delivered 40-85 N of a
+    """Issue 12: closing was a velocity motor limited at the grip force, and the solver delivered 30-100 N of a
     100-235 N setting while the arm lifted and held (less on light objects, which then crept out of the fingers);
     once the fingers stall they now push with the setting itself, like the 2F-85's motor."""
     from sim.cell import SimCell
