@@ -239,8 +239,7 @@ class Robotiq2F85:
         self.lifts = tuple(names[side[4]] for side in SIDES)
         self.knuckles = tuple((names[side[0]], names[side[1]]) for side in SIDES)
         self.arcs = description_arcs(description)
-        self._closing = False
-        self._squeezing = False
+        self._slide_drive = "held"  # "held" at a set travel, "closing" at the closing speed, or "squeezing"
         self.pad_links = tuple(links[n] for n in PAD_LINKS)
         self.fingertip_links = tuple(tuple(links[n] for n in side) for side in FINGERTIP_LINKS)
         self.carriages = tuple(links[side[3].replace("slide", "carriage")] for side in SIDES)
@@ -329,10 +328,10 @@ class Robotiq2F85:
             self.body, [j for j, _ in targets], pybullet.POSITION_CONTROL, targetPositions=[t for _, t in targets],
             forces=forces,
         )
-        if self._squeezing:
+        if self._slide_drive == "squeezing":
             c.setJointMotorControlArray(self.body, list(self.slides), pybullet.TORQUE_CONTROL,
                                         forces=[self.settings.grip_force] * 2)
-        elif self._closing:
+        elif self._slide_drive == "closing":
             correction = CENTRING_GAIN * (travel[1] - travel[0])
             c.setJointMotorControlArray(
                 self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
@@ -348,7 +347,7 @@ class Robotiq2F85:
         """Place both fingers at a slide travel instantly (no physics) and hold them there; used at reset and for
         calibration."""
         c = self.world.client
-        self._closing = self._squeezing = False
+        self._slide_drive = "held"
         for side, (slide, lift, knuckles) in enumerate(zip(self.slides, self.lifts, self.knuckles)):
             height, angle = self._arc(side, travel)
             c.resetJointState(self.body, slide, travel)
@@ -384,7 +383,7 @@ class Robotiq2F85:
     def command_close(self) -> None:
         """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
         at the closing speed with the grip force as the force limit (`_drive_fingers`)."""
-        self._closing, self._squeezing = True, False
+        self._slide_drive = "closing"
 
     def squeeze(self) -> None:
         """From the next physics step until the next `set_travel`, push both slides closed with the grip force, as
@@ -396,7 +395,7 @@ class Robotiq2F85:
         light objects crept out of the fingers (`bench/bench_replay.py`). The force itself is exact every step."""
         self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
                                                     targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])
-        self._squeezing = True
+        self._slide_drive = "squeezing"
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
         """Close until both fingers stall (contact: from then on they `squeeze`) or the gripper is shut; returns the
