@@ -82,6 +82,12 @@ def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighb
     # the grasp whose pads press on the handle comes first; the other still fills the request
     assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())] == [[0, 1], []]
     assert [c.tolist() for c in select_per_prompt(grasps, mesh, labels, 2, 1, PadFootprint())] == [[0], []]
+    # pads a metre away touch nothing: each pad falls back to the face nearest its contact
+    far = GraspSet(poses + np.array([[0, 0, 0, 1.0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]), [0.025, 0.025],
+                   [0.5, 0.9], contacts)
+    surface = PadFootprint().on(mesh)
+    assert all(len(pad) == 0 for pads in surface.touched_faces(far) for pad in pads)
+    np.testing.assert_allclose(surface.pad_means(far, (labels == 0).astype(float)[:, None])[:, :, 0], 1.0)
 
 
 def test_sampled_grasps_keep_their_pads_on_their_own_part(hammer) -> None:

@@ -76,6 +76,9 @@ class PadSurface:
         touched = []
         for pose, opening, radius in zip(grasps.poses, openings, reach):
             near = np.asarray(self._tree.query_ball_point(pose[:3, 3], radius), dtype=np.int64)
+            if len(near) == 0:  # the pads are nowhere near the surface
+                touched.append((near, near))
+                continue
             low_pad, high_pad, _ = pad_touches(pose[None], np.array([opening]), self.points[near], half_width,
                                                half_length, fp.tolerance)
             touched.append((self.point_faces[near[low_pad[0]]], self.point_faces[near[high_pad[0]]]))
