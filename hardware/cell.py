@@ -187,29 +187,12 @@ class RealCell:
         `T_world_grasp` is the gripper frame (pad centres) at the grasp and `width` the opening at which the pads
         meet the object. Returns `reachable=False` without moving when any pose breaks a limit or has no IK.
         """
-        self._check_open()
-        T_grasp = np.asarray(T_world_grasp, dtype=np.float64)
-        if T_grasp.shape != (4, 4) or not np.all(np.isfinite(T_grasp)):
-            raise ValueError(f"T_world_grasp must be a finite 4x4 matrix, got shape {T_grasp.shape}")
-        if not np.isfinite(width) or width < 0:
-            raise ValueError(f"grasp width must be a non-negative number, got {width!r}")
-        cfg, motion = self.config, self.config.motion
-        if width > cfg.gripper.stroke:
-            return self._not_reached(f"grasp width {width:.4f} m exceeds the gripper stroke {cfg.gripper.stroke} m")
-
-        # Command frame: the controller's TCP is the fully-open pad centre; at `width` the pads sit
-        # `pad_shift(width)` further along +z, so the command goes back by that much.
-        grasp = _translated(T_grasp, along_z=-cfg.gripper.pad_shift(width))
-        pre = _translated(grasp, along_z=-motion.pregrasp_distance)
-        lift = _translated(grasp, offset_world=np.array([0.0, 0.0, motion.lift_height]))
-        place = _translated(grasp, offset_world=np.array([0.0, 0.0, PLACE_CLEARANCE]))
-        retreat = _translated(place, along_z=-motion.pregrasp_distance)
-        opening = min(cfg.gripper.stroke, width + motion.opening_margin)
-
-        refusal = self._check_plan([("pre-grasp", pre), ("grasp", grasp), ("lift", lift), ("place", place),
-                                    ("retreat", retreat)])
+        refusal = self.check_reach(T_world_grasp, width)
         if refusal:
             return self._not_reached(refusal)
+        cfg, motion = self.config, self.config.motion
+        pre, grasp, lift, place, retreat = (pose for _, pose in self._motion_poses(T_world_grasp, width))
+        opening = min(cfg.gripper.stroke, width + motion.opening_margin)
 
         stage = "opening the gripper"
         try:
@@ -272,8 +255,19 @@ class RealCell:
         if self._closed:
             raise ConnectionLostError("the real cell was closed")
 
-    def _check_plan(self, poses: list[tuple[str, np.ndarray]]) -> str:
-        """Empty string if every pose and the straight paths between them pass; otherwise why not."""
+    def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
+        """Why `execute` would refuse this grasp without moving (a width beyond the stroke; a pose of the
+        pre-grasp, grasp, lift, place and retreat, or a straight path between them, outside the safety limits or
+        without inverse kinematics); "" when it would go ahead. Nothing moves."""
+        self._check_open()
+        T_grasp = np.asarray(T_world_grasp, dtype=np.float64)
+        if T_grasp.shape != (4, 4) or not np.all(np.isfinite(T_grasp)):
+            raise ValueError(f"T_world_grasp must be a finite 4x4 matrix, got shape {T_grasp.shape}")
+        if not np.isfinite(width) or width < 0:
+            raise ValueError(f"grasp width must be a non-negative number, got {width!r}")
+        if width > self.config.gripper.stroke:
+            return f"grasp width {width:.4f} m exceeds the gripper stroke {self.config.gripper.stroke} m"
+        poses = self._motion_poses(T_grasp, width)
         try:
             for (name_a, pose_a), (name_b, pose_b) in zip(poses, poses[1:]):
                 self.arm.guard.check_pose(pose_a, name_a)
@@ -284,6 +278,19 @@ class RealCell:
         except SafetyError as exc:
             return f"refused by the safety limits: {exc}"
         return ""
+
+    def _motion_poses(self, T_world_grasp: np.ndarray, width: float) -> list[tuple[str, np.ndarray]]:
+        """The commanded TCP poses of a grasp, in order: pre-grasp, grasp, lift, place, retreat.
+
+        Command frame: the controller's TCP is the fully-open pad centre; at `width` the pads sit `pad_shift(width)`
+        further along +z, so the command goes back by that much."""
+        motion = self.config.motion
+        grasp = _translated(np.asarray(T_world_grasp, dtype=np.float64), along_z=-self.config.gripper.pad_shift(width))
+        pre = _translated(grasp, along_z=-motion.pregrasp_distance)
+        lift = _translated(grasp, offset_world=np.array([0.0, 0.0, motion.lift_height]))
+        place = _translated(grasp, offset_world=np.array([0.0, 0.0, PLACE_CLEARANCE]))
+        retreat = _translated(place, along_z=-motion.pregrasp_distance)
+        return [("pre-grasp", pre), ("grasp", grasp), ("lift", lift), ("place", place), ("retreat", retreat)]
 
     def _not_reached(self, message: str, failure: str = "unreachable") -> GraspOutcome:
         log.warning("grasp not executed: %s", message)

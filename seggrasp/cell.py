@@ -103,6 +103,10 @@ class Cell(Protocol):
         reconstructed from `capture()` instead.
         """
 
+    def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
+        """Why the arm could not execute this grasp (a pose on its way has no inverse kinematics or breaks the
+        cell's limits), checked without moving anything; "" when it can. `execute` refuses the same grasps."""
+
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Pre-grasp, approach, close, lift 20 cm and hold; report the outcome. Never raises for a failed grasp."""
 

@@ -197,16 +197,24 @@ class SimCell:
         self._require_scene()
         return self.current_object.mesh, self.world.body_pose(self.object_body)
 
+    def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
+        """Why `execute` would find this grasp unreachable (step 1's IK check of its pre-grasp, grasp and lift
+        poses; nothing moves), "" when the arm reaches it."""
+        self._require_scene()
+        T_world_grasp, width = _check_grasp(T_world_grasp, width)
+        candidates, reason = GraspPrimitive(
+            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings
+        ).plan(T_world_grasp, width)
+        return "" if candidates else f"unreachable: {reason}"
+
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Grasp-and-lift (module docstring). Unreachable or colliding poses give `reachable=False`."""
         self._require_scene()
-        T_world_grasp = _check_pose(T_world_grasp)
-        if not np.isfinite(width) or width < 0:
-            raise ValueError(f"grasp width must be a non-negative number of metres, got {width}")
+        T_world_grasp, width = _check_grasp(T_world_grasp, width)
         recorder, self._recorder = self._recorder, None
         outcome = GraspPrimitive(
             self.world, self.robot, self.object_body, self.current_object, self.grasp_settings, recorder
-        ).run(T_world_grasp, float(width))
+        ).run(T_world_grasp, width)
         if recorder is not None and not outcome.reachable:
             recorder.write(f"{self.current_object.object_id}: {outcome.message}")
         return outcome
@@ -247,6 +255,13 @@ class SimCell:
         self.close()
 
 
+def _check_grasp(T: np.ndarray, width: float) -> tuple[np.ndarray, float]:
+    """A grasp's pose (`_check_pose`) and width (a non-negative number of metres), or ValueError."""
+    if not np.isfinite(width) or width < 0:
+        raise ValueError(f"grasp width must be a non-negative number of metres, got {width}")
+    return _check_pose(T), float(width)
+
+
 def _check_pose(T: np.ndarray) -> np.ndarray:
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4) or not np.all(np.isfinite(T)):
@@ -274,16 +289,22 @@ class GraspPrimitive:
         self.gripper = robot.gripper
         self.recorder = recorder
 
-    def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+    def plan(self, T_world_grasp: np.ndarray, width: float) -> tuple[list, str]:
+        """The robot's candidate paths (`UR5Arm.plan`) through the grasp's pre-grasp, grasp and lift poses of the
+        gripper base, or ([], why none)."""
         s = self.settings
-        opening = min(width + s.width_margin, self.gripper.max_width)
         self._T_base_tcp = self.gripper.T_base_tcp(min(width, self.gripper.max_width))
         T_world_base = T_world_grasp @ np.linalg.inv(self._T_base_tcp)
         T_pre = T_world_base.copy()
         T_pre[:3, 3] -= s.pregrasp_distance * T_world_base[:3, 2]
         T_lift = T_world_base.copy()
         T_lift[2, 3] += s.lift_height
-        candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
+        return self.robot.plan([T_pre, T_world_base, T_lift])
+
+    def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+        s = self.settings
+        opening = min(width + s.width_margin, self.gripper.max_width)
+        candidates, reason = self.plan(T_world_grasp, width)
         if not candidates:
             return GraspOutcome(False, False, 0.0, message=f"unreachable: {reason}", failure="unreachable")
         plan, start, reasons = None, self.robot.configuration(), []

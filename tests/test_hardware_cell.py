@@ -166,9 +166,10 @@ def test_empty_grasp_is_not_lifted(tmp_path):
 def test_refused_grasps_send_no_motion(rig, grasp, width, reason):
     rig.cell.reset()
     motions, lines = len(rig.ur.motions), len(rig.server.lines)
+    refusal = rig.cell.check_reach(grasp, width)
     outcome = rig.cell.execute(grasp, width)
     assert not outcome.reachable and not outcome.lifted and outcome.failure == "unreachable"
-    assert reason in outcome.message
+    assert reason in outcome.message and refusal == outcome.message
     assert len(rig.ur.motions) == motions and len(rig.server.lines) == lines
 
 
@@ -176,9 +177,12 @@ def test_grasp_without_inverse_kinematics_is_unreachable(rig):
     rig.cell.reset()
     rig.ur.reach = 0.3
     motions = len(rig.ur.motions)
+    assert "inverse-kinematics" in rig.cell.check_reach(top_down([0.52, 0.1, 0.05]), 0.05)
     outcome = rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert not outcome.reachable and "inverse-kinematics" in outcome.message
     assert len(rig.ur.motions) == motions
+    rig.ur.reach = 2.0
+    assert rig.cell.check_reach(top_down([0.52, 0.1, 0.05]), 0.05) == ""
 
 
 def test_connection_lost_while_lifting_stops_with_a_clear_error(rig):

@@ -88,6 +88,9 @@ class StillCell:
     def object_mesh(self):
         return self.mesh, np.eye(4)
 
+    def check_reach(self, T_world_grasp, width) -> str:
+        return ""
+
     def execute(self, T_world_grasp, width) -> GraspOutcome:
         self.executed += 1
         return GraspOutcome(True, False, 0.0)

@@ -88,9 +88,14 @@ def test_arm_reports_unreachable_pose(box):
         _, T_world_obj = cell.object_mesh()
         T = top_down_grasp(T_world_obj, 0.06)
         T[0, 3] = 1.5  # far beyond the UR5's reach
+        reason = cell.check_reach(T, 0.05)
         outcome = cell.execute(T, 0.05)
         assert not outcome.reachable and not outcome.lifted
         assert "unreachable" in outcome.message and outcome.failure == "unreachable"
+        assert reason == outcome.message  # the check without motion refuses what execute refuses, for the same reason
+        assert cell.check_reach(top_down_grasp(T_world_obj, 0.06), 0.05) == ""
+        with pytest.raises(ValueError, match="width"):
+            cell.check_reach(T, -0.01)
 
 
 def test_same_seed_same_scene_frames_and_outcome(box):
