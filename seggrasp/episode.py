@@ -3,7 +3,8 @@
 One episode for one object in one scene: reset the cell, get the object's mesh (the cell's own, or reconstructed
 from its cameras), let a method (seggrasp/method.py) label it into the prompted parts, sample grasps on the mesh,
 keep per prompt the top-k grasps the method's selection chooses for that prompt, move them into the world
-(`T_world_obj @ T_obj_grasp`) and execute each one from a fresh reset of the same scene. Every trial slot becomes one
+(`T_world_obj @ T_obj_grasp`), put those the arm reaches (`Cell.check_reach`) first, as a real planner skips a grasp
+without inverse kinematics, and execute each one from a fresh reset of the same scene. Every trial slot becomes one
 `TrialRecord`. A harness chooses the cell, the detector (`seggrasp.truth.DetectorSpec`) and, for a labelled object,
 the ground truth (`seggrasp.truth.GroundTruth`), and passes them in.
 
@@ -38,6 +39,8 @@ from seggrasp.truth import DetectorSpec, GroundTruth
 LOG = logging.getLogger(__name__)
 #: Label-based selection puts the grasps whose pads each press mostly on the labelled part first.
 PAD_FOOTPRINT = PadFootprint()
+#: Slot planning looks this many times top-k deep into each prompt's ranked grasps for ones the arm reaches.
+REACH_DEPTH = 3
 
 
 @dataclass
@@ -167,23 +170,29 @@ def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
 
 
 def plan_slots(
-    plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int
+    plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int,
+    reaches: Callable[[np.ndarray, float], bool] | None = None,
 ) -> list[Slot]:
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
     probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
-    pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world."""
+    pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world. With `reaches` (world pose, width ->
+    whether the arm reaches the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k come first, in
+    rank order; unreachable ones fill the slots left."""
+    depth = top_k if reaches is None else REACH_DEPTH * top_k
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
         if plan.policy is not None:
-            chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, top_k)
+            chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, depth)
         else:
-            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, top_k,
+            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, depth,
                                                   PAD_FOOTPRINT)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:
         chosen = per_prompt[k].transformed(observation.T_world_obj)
+        if plan.own_grasps is None:
+            chosen = chosen.subset(_reachable_first(chosen, reaches, top_k))
         for rank in range(top_k):
             if plan.own_grasps is not None and len(chosen):
                 # shapegrasp plans one grasp per part: every slot executes it again, as repeated trials
@@ -192,6 +201,20 @@ def plan_slots(
                 grasp = chosen.subset([rank]) if rank < len(chosen) else None
             slots.append(Slot(plan.method, plan.detector, k, rank, grasp, len(chosen)))
     return slots
+
+
+def _reachable_first(grasps: GraspSet, reaches: Callable[[np.ndarray, float], bool] | None, top_k: int) -> np.ndarray:
+    """Indices of the first `top_k` grasps (rank order) that `reaches` accepts, then of the first ones it refuses
+    to fill up to `top_k`; only as many are checked as it takes (all first top-k without `reaches`)."""
+    if reaches is None:
+        return np.arange(min(top_k, len(grasps)))
+    reachable: list[int] = []
+    unreachable: list[int] = []
+    for i in range(len(grasps)):
+        if len(reachable) == top_k:
+            break
+        (reachable if reaches(grasps.poses[i], float(grasps.widths[i])) else unreachable).append(i)
+    return np.asarray((reachable + unreachable)[:top_k], dtype=np.int64)
 
 
 def failure_of(outcome: GraspOutcome | None, success: bool | None, on_part: bool | None) -> str:
@@ -234,6 +257,7 @@ class Episode:
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
+        self._reach: dict[str, bool] = {}
 
     @property
     def observation(self) -> Observation:
@@ -324,7 +348,18 @@ class Episode:
         """The plan's top-k slots for each target prompt."""
         indices = self.target_indices(targets)
         grasps = GraspSet.empty() if plan.own_grasps is not None else self.grasps()
-        return plan_slots(plan, grasps, self.observation, len(self.context.prompts), indices, self.settings.top_k)
+        return plan_slots(plan, grasps, self.observation, len(self.context.prompts), indices, self.settings.top_k,
+                          self.reaches)
+
+    def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
+        """Whether the cell's arm reaches this grasp (`Cell.check_reach`; remembered per grasp)."""
+        key = grasp_key(T_world_grasp, width)
+        if key not in self._reach:
+            reason = self.cell.check_reach(T_world_grasp, width)
+            if reason:
+                LOG.debug("grasp out of the arm's reach: %s", reason)
+            self._reach[key] = not reason
+        return self._reach[key]
 
     def run(
         self,

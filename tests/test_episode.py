@@ -13,7 +13,7 @@ from seggrasp.cell import GraspOutcome
 from seggrasp.episode import (Episode, EpisodeContext, EpisodeSettings, Observation, failure_of, plan_slots,
                               table_plane_in_object_frame)
 from seggrasp.labels import PartLabels, find_prompt, prompt_index
-from seggrasp.method import ObjectSegmenter
+from seggrasp.method import ObjectSegmenter, PartPlan
 from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.cell import SimCell
 from sim.primitives import primitive_object
@@ -176,6 +176,33 @@ def test_seggrasp_fills_the_request_the_agreement_filter_leaves_empty(cylinder) 
     assert all(s.grasp is None for s in agree)
     side = plan_slots(plan, grasps, observation, 3, [1], top_k=1)
     assert side[0].grasp is not None and float(side[0].grasp.scores[0]) == 0.9
+
+
+def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others(cylinder) -> None:
+    mesh = cylinder.mesh
+    n = 8
+    poses = np.repeat(np.eye(4)[None], n, axis=0)
+    poses[:, 0, 3] = 1e-3 * np.arange(n)  # grasp i sits at x = i mm
+    contacts = np.repeat(np.array([[[-0.03, 0.0, 0.05], [0.03, 0.0, 0.05]]]), n, axis=0)  # all on the side
+    grasps = GraspSet(poses, np.full(n, 0.06), np.linspace(1.0, 0.3, n), contacts)
+    plan = PartPlan("oracle", "ground-truth", np.asarray(cylinder.labels.face_labels))  # top, side, bottom
+    observation = Observation(mesh, np.eye(4))
+    asked = []
+
+    def grasp_at(T) -> int:
+        return int(round(T[0, 3] * 1e3))
+
+    def reaches(T, width) -> bool:
+        asked.append(grasp_at(T))
+        return grasp_at(T) not in (0, 2)
+
+    slots = plan_slots(plan, grasps, observation, 3, [1], top_k=3, reaches=reaches)
+    assert [grasp_at(s.grasp.poses[0]) for s in slots] == [1, 3, 4]  # rank order among the reachable ones
+    assert asked == [0, 1, 2, 3, 4]  # checked only until three reachable ones were found
+    asked.clear()
+    few = plan_slots(plan, grasps, observation, 3, [1], top_k=3, reaches=lambda T, w: grasp_at(T) == 5)
+    assert [grasp_at(s.grasp.poses[0]) for s in few] == [5, 0, 1]  # unreachable ones fill the slots left
+    assert [grasp_at(s.grasp.poses[0]) for s in plan_slots(plan, grasps, observation, 3, [1], 3)] == [0, 1, 2]
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
