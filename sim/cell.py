@@ -11,7 +11,7 @@ seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gi
    the object; otherwise the grasp is `reachable=False` and nothing moves;
 2. open the gripper to width + margin, move to the pre-grasp through free space (the arm in joint space at its
    speed limit, simulated; the floating gripper is placed there), approach in a straight line, close until the
-   finger stalls, lift, hold 1 s (objects under 50 g at more solver iterations: `PhysicsSettings`);
+   finger stalls, lift, hold 1 s (objects under 100 g at more solver iterations: `PhysicsSettings`);
 3. report: lifted (the grasped point raised >= 18 cm, both fingertips still touching the object, and the object
    moved < 10 mm / 15 deg relative to the gripper from the close to the end of the hold), else the failure
    (`unreachable`, `collision`, `pushed`, `empty_close`, `slipped`, `rotated`); the rise of the grasped point, the
