@@ -205,6 +205,45 @@ def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others
     assert [grasp_at(s.grasp.poses[0]) for s in plan_slots(plan, grasps, observation, 3, [1], 3)] == [0, 1, 2]
 
 
+class OutOfReachCell:
+    """A cell on a fixed mesh whose arm reaches no grasp centred above `z_limit` (world = object frame)."""
+
+    def __init__(self, mesh: trimesh.Trimesh, z_limit: float) -> None:
+        self.mesh, self.z_limit, self.checked = mesh, z_limit, 0
+
+    def reset(self, seed=None, object_id=None) -> None:
+        pass
+
+    def object_mesh(self):
+        return self.mesh, np.eye(4)
+
+    def check_reach(self, T_world_grasp, width) -> str:
+        self.checked += 1
+        return "unreachable: too high" if T_world_grasp[2, 3] > self.z_limit else ""
+
+    def execute(self, T_world_grasp, width) -> GraspOutcome:
+        refusal = self.check_reach(T_world_grasp, width)
+        return GraspOutcome(False, False, 0.0, message=refusal, failure="unreachable") if refusal else \
+            GraspOutcome(True, False, 0.0)
+
+
+def test_an_episode_asks_its_cell_which_grasps_the_arm_reaches_once_per_grasp(cylinder) -> None:
+    mesh, labels = cylinder.mesh, cylinder.labels.face_labels
+    context = EpisodeContext("cylinder", "cylinder", ["top", "side", "bottom"], scene_seed=0)
+    free = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels))
+    best = [s.grasp.poses[0, 2, 3] for s in free.slots(free.plan("oracle"), ["side"])]
+    z_limit = float(np.median(best))  # half of the side's ten best grasps are out of reach
+    cell = OutOfReachCell(mesh, z_limit)
+    episode = Episode(cell, context, None, GroundTruth(mesh, labels))
+    slots = episode.slots(episode.plan("oracle"), ["side"])
+    assert len(slots) == 10 and all(s.grasp is not None for s in slots)
+    assert all(s.grasp.poses[0, 2, 3] <= z_limit for s in slots)  # the side has lower grasps to fill all ten
+    checked = cell.checked
+    episode.slots(episode.plan("oracle"), ["side"])
+    assert cell.checked == checked  # remembered per grasp
+    assert all(episode.execute(slot).failure != "unreachable" for slot in slots[:3])
+
+
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
     fake_votes = np.zeros((len(cylinder.mesh.faces), 3))
     fake_votes[:, 1] = 1.0
