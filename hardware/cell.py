@@ -187,11 +187,11 @@ class RealCell:
         `T_world_grasp` is the gripper frame (pad centres) at the grasp and `width` the opening at which the pads
         meet the object. Returns `reachable=False` without moving when any pose breaks a limit or has no IK.
         """
-        refusal = self.check_reach(T_world_grasp, width)
+        poses, refusal = self._planned_poses(T_world_grasp, width)
         if refusal:
             return self._not_reached(refusal)
         cfg, motion = self.config, self.config.motion
-        pre, grasp, lift, place, retreat = (pose for _, pose in self._motion_poses(T_world_grasp, width))
+        pre, grasp, lift, place, retreat = (pose for _, pose in poses)
         opening = min(cfg.gripper.stroke, width + motion.opening_margin)
 
         stage = "opening the gripper"
@@ -259,6 +259,11 @@ class RealCell:
         """Why `execute` would refuse this grasp without moving (a width beyond the stroke; a pose of the
         pre-grasp, grasp, lift, place and retreat, or a straight path between them, outside the safety limits or
         without inverse kinematics); "" when it would go ahead. Nothing moves."""
+        return self._planned_poses(T_world_grasp, width)[1]
+
+    def _planned_poses(self, T_world_grasp: np.ndarray, width: float) -> tuple[list[tuple[str, np.ndarray]], str]:
+        """The grasp's named motion poses (`_motion_poses`; none for a width beyond the stroke) and why they would be
+        refused ("" when they pass), for `check_reach` and `execute`."""
         self._check_open()
         T_grasp = np.asarray(T_world_grasp, dtype=np.float64)
         if T_grasp.shape != (4, 4) or not np.all(np.isfinite(T_grasp)):
@@ -266,7 +271,7 @@ class RealCell:
         if not np.isfinite(width) or width < 0:
             raise ValueError(f"grasp width must be a non-negative number, got {width!r}")
         if width > self.config.gripper.stroke:
-            return f"grasp width {width:.4f} m exceeds the gripper stroke {self.config.gripper.stroke} m"
+            return [], f"grasp width {width:.4f} m exceeds the gripper stroke {self.config.gripper.stroke} m"
         poses = self._motion_poses(T_grasp, width)
         try:
             for (name_a, pose_a), (name_b, pose_b) in zip(poses, poses[1:]):
@@ -274,10 +279,10 @@ class RealCell:
                 self.arm.guard.check_linear_path(pose_a, pose_b, f"{name_a} -> {name_b}")
             for name, pose in poses:
                 if not self.arm.has_ik_solution(pose):
-                    return f"{name} pose has no inverse-kinematics solution"
+                    return poses, f"{name} pose has no inverse-kinematics solution"
         except SafetyError as exc:
-            return f"refused by the safety limits: {exc}"
-        return ""
+            return poses, f"refused by the safety limits: {exc}"
+        return poses, ""
 
     def _motion_poses(self, T_world_grasp: np.ndarray, width: float) -> list[tuple[str, np.ndarray]]:
         """The commanded TCP poses of a grasp, in order: pre-grasp, grasp, lift, place, retreat.

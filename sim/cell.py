@@ -202,10 +202,10 @@ class SimCell:
         poses; nothing moves), "" when the arm reaches it."""
         self._require_scene()
         T_world_grasp, width = _check_grasp(T_world_grasp, width)
-        candidates, reason = GraspPrimitive(
+        candidates, refusal = GraspPrimitive(
             self.world, self.robot, self.object_body, self.current_object, self.grasp_settings
         ).plan(T_world_grasp, width)
-        return "" if candidates else f"unreachable: {reason}"
+        return "" if candidates else refusal
 
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Grasp-and-lift (module docstring). Unreachable or colliding poses give `reachable=False`."""
@@ -291,7 +291,7 @@ class GraspPrimitive:
 
     def plan(self, T_world_grasp: np.ndarray, width: float) -> tuple[list, str]:
         """The robot's candidate paths (`UR5Arm.plan`) through the grasp's pre-grasp, grasp and lift poses of the
-        gripper base, or ([], why none)."""
+        gripper base, or ([], "unreachable: " and why none)."""
         s = self.settings
         self._T_base_tcp = self.gripper.T_base_tcp(min(width, self.gripper.max_width))
         T_world_base = T_world_grasp @ np.linalg.inv(self._T_base_tcp)
@@ -299,14 +299,15 @@ class GraspPrimitive:
         T_pre[:3, 3] -= s.pregrasp_distance * T_world_base[:3, 2]
         T_lift = T_world_base.copy()
         T_lift[2, 3] += s.lift_height
-        return self.robot.plan([T_pre, T_world_base, T_lift])
+        candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
+        return candidates, "" if candidates else f"unreachable: {reason}"
 
     def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         s = self.settings
         opening = min(width + s.width_margin, self.gripper.max_width)
-        candidates, reason = self.plan(T_world_grasp, width)
+        candidates, refusal = self.plan(T_world_grasp, width)
         if not candidates:
-            return GraspOutcome(False, False, 0.0, message=f"unreachable: {reason}", failure="unreachable")
+            return GraspOutcome(False, False, 0.0, message=refusal, failure="unreachable")
         plan, start, reasons = None, self.robot.configuration(), []
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
