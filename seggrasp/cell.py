@@ -104,8 +104,10 @@ class Cell(Protocol):
         """
 
     def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
-        """Why the arm could not execute this grasp (a pose on its way has no inverse kinematics or breaks the
-        cell's limits), checked without moving anything; "" when it can. `execute` refuses the same grasps."""
+        """Why the cell would refuse to execute this grasp now (a pose on its way has no inverse kinematics or breaks
+        the cell's limits; a cell that models its surroundings, the twin, also refuses a motion that would hit the
+        table or the object), checked without moving anything; "" when it would go ahead. `execute` refuses the
+        same grasps."""
 
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Pre-grasp, approach, close, lift 20 cm and hold; report the outcome. Never raises for a failed grasp."""

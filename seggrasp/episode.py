@@ -3,8 +3,8 @@
 One episode for one object in one scene: reset the cell, get the object's mesh (the cell's own, or reconstructed
 from its cameras), let a method (seggrasp/method.py) label it into the prompted parts, sample grasps on the mesh,
 keep per prompt the top-k grasps the method's selection chooses for that prompt, move them into the world
-(`T_world_obj @ T_obj_grasp`), put those the arm reaches (`Cell.check_reach`) first, as a real planner skips a grasp
-without inverse kinematics, and execute each one from a fresh reset of the same scene. Every trial slot becomes one
+(`T_world_obj @ T_obj_grasp`), put those the cell would execute (`Cell.check_reach`) first, as a real planner skips a
+grasp it has no motion for, and execute each one from a fresh reset of the same scene. Every trial slot becomes one
 `TrialRecord`. A harness chooses the cell, the detector (`seggrasp.truth.DetectorSpec`) and, for a labelled object,
 the ground truth (`seggrasp.truth.GroundTruth`), and passes them in.
 
@@ -258,12 +258,13 @@ class Episode:
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
         self._reach: dict[str, bool] = {}
+        self._scene_fresh = False  # the cell's scene is as `reset` left it (no grasp executed since)
 
     @property
     def observation(self) -> Observation:
         """The planning mesh (the scene is reset and observed on first use)."""
         if self._observation is None:
-            self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
+            self._reset_scene()
             s = self.settings
             self._observation = observe(self.cell, perceive=s.perceive, workspace=s.workspace)
             if self.truth is not None:
@@ -352,9 +353,12 @@ class Episode:
                           self.reaches)
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
-        """Whether the cell's arm reaches this grasp (`Cell.check_reach`; remembered per grasp)."""
+        """Whether the cell's arm reaches this grasp (`Cell.check_reach`, in the scene as a slot's execution will
+        find it: reset first if a grasp was executed since; remembered per grasp)."""
         key = grasp_key(T_world_grasp, width)
         if key not in self._reach:
+            if not self._scene_fresh:
+                self._reset_scene()
             reason = self.cell.check_reach(T_world_grasp, width)
             if reason:
                 LOG.debug("grasp out of the arm's reach: %s", reason)
@@ -414,6 +418,10 @@ class Episode:
         record.failure = failure_of(outcome, record.success, on_part)
         return record
 
+    def _reset_scene(self) -> None:
+        self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
+        self._scene_fresh = True
+
     def contacts_on_part(self, slot: Slot) -> bool | None:
         """Part Sel. of a slot from its planned contacts, without executing it: False for a slot without a grasp
         or whose grasp's pads touch nothing (non-finite contacts); None without ground truth or for a grasp given
@@ -431,7 +439,8 @@ class Episode:
             record.reused_outcome = True
             return self.outcome_cache[key]
         if reset:
-            self.cell.reset(seed=self.context.scene_seed, object_id=self.context.object_id)
+            self._reset_scene()
+        self._scene_fresh = False
         outcome = self.cell.execute(T_world_grasp, width)
         if self.outcome_cache is not None:
             self.outcome_cache[key] = outcome

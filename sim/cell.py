@@ -198,14 +198,14 @@ class SimCell:
         return self.current_object.mesh, self.world.body_pose(self.object_body)
 
     def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
-        """Why `execute` would find this grasp unreachable (step 1's IK check of its pre-grasp, grasp and lift
-        poses; nothing moves), "" when the arm reaches it."""
+        """Why `execute` would refuse this grasp in the scene as it is now - step 1 of the module docstring: no IK
+        plan (`unreachable: ...`), or every free-space path, approach or lift hits the table or the object - with
+        nothing moved (the robot is posed kinematically and put back); "" when it would go ahead."""
         self._require_scene()
         T_world_grasp, width = _check_grasp(T_world_grasp, width)
-        candidates, refusal = GraspPrimitive(
+        return GraspPrimitive(
             self.world, self.robot, self.object_body, self.current_object, self.grasp_settings
-        ).plan(T_world_grasp, width)
-        return "" if candidates else refusal
+        ).motion(T_world_grasp, width)[2]
 
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """Grasp-and-lift (module docstring). Unreachable or colliding poses give `reachable=False`."""
@@ -302,13 +302,17 @@ class GraspPrimitive:
         candidates, reason = self.robot.plan([T_pre, T_world_base, T_lift])
         return candidates, "" if candidates else f"unreachable: {reason}"
 
-    def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
-        s = self.settings
-        opening = min(width + s.width_margin, self.gripper.max_width)
+    def motion(self, T_world_grasp: np.ndarray, width: float) -> tuple[tuple | None, str, str]:
+        """The grasp's checked motion from the robot's current configuration: ((free-space transit, candidate
+        paths of `plan`), "", "") for the first IK branch (nearest home first) with a free-space path whose whole
+        motion passes `collision_on_path`; else (None, failure, message) with the failure `unreachable` (no IK plan)
+        or `collision`. The checks pose the robot kinematically and put it back, the fingers as they were."""
         candidates, refusal = self.plan(T_world_grasp, width)
         if not candidates:
-            return GraspOutcome(False, False, 0.0, message=refusal, failure="unreachable")
-        plan, start, reasons = None, self.robot.configuration(), []
+            return None, "unreachable", refusal
+        opening = min(width + self.settings.width_margin, self.gripper.max_width)
+        start, fingers, reasons = self.robot.configuration(), self.gripper.width(), []
+        plan = None
         for candidate in candidates:  # IK branches, nearest home first
             for transit in self.robot.free_space_paths(start, candidate[0][0]):
                 # the fingers close at the grasp (the approach's last waypoint) and stay closed on the lift
@@ -320,12 +324,20 @@ class GraspPrimitive:
             if plan is not None:
                 break
         self.robot.place(start)  # the checks posed the robot kinematically: put it back
+        self.gripper.set_width(fingers)
         if plan is None:
-            self.gripper.set_width(self.gripper.max_width)
-            message = reasons[0] + (f" (and {len(reasons) - 1} other paths collide)" if len(reasons) > 1 else "")
-            return GraspOutcome(False, False, 0.0, message=message, failure="collision")
+            return None, "collision", reasons[0] + (
+                f" (and {len(reasons) - 1} other paths collide)" if len(reasons) > 1 else "")
+        return plan, "", ""
+
+    def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
+        plan, failure, message = self.motion(T_world_grasp, width)
+        if plan is None:
+            if failure == "collision":
+                self.gripper.set_width(self.gripper.max_width)
+            return GraspOutcome(False, False, 0.0, message=message, failure=failure)
         transit, paths = plan
-        self.gripper.set_width(opening)
+        self.gripper.set_width(min(width + self.settings.width_margin, self.gripper.max_width))
         self.robot.move_free(transit)
         self._snap("pre-grasp")
         return self._grasp_and_lift(paths)

@@ -206,28 +206,32 @@ def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others
 
 
 class OutOfReachCell:
-    """A cell on a fixed mesh whose arm reaches no grasp centred above `z_limit` (world = object frame)."""
+    """A cell on a fixed mesh whose arm reaches no grasp centred above `z_limit` (world = object frame); it counts
+    the checks made in a scene a grasp was executed in since the last reset (`checked_disturbed`)."""
 
     def __init__(self, mesh: trimesh.Trimesh, z_limit: float) -> None:
         self.mesh, self.z_limit, self.checked = mesh, z_limit, 0
+        self.disturbed, self.checked_disturbed = False, 0
 
     def reset(self, seed=None, object_id=None) -> None:
-        pass
+        self.disturbed = False
 
     def object_mesh(self):
         return self.mesh, np.eye(4)
 
     def check_reach(self, T_world_grasp, width) -> str:
         self.checked += 1
+        self.checked_disturbed += self.disturbed
         return "unreachable: too high" if T_world_grasp[2, 3] > self.z_limit else ""
 
     def execute(self, T_world_grasp, width) -> GraspOutcome:
+        self.disturbed = True
         refusal = self.check_reach(T_world_grasp, width)
         return GraspOutcome(False, False, 0.0, message=refusal, failure="unreachable") if refusal else \
             GraspOutcome(True, False, 0.0)
 
 
-def test_an_episode_asks_its_cell_which_grasps_the_arm_reaches_once_per_grasp(cylinder) -> None:
+def test_an_episode_asks_its_cell_which_grasps_it_can_execute_once_per_grasp_in_a_fresh_scene(cylinder) -> None:
     mesh, labels = cylinder.mesh, cylinder.labels.face_labels
     context = EpisodeContext("cylinder", "cylinder", ["top", "side", "bottom"], scene_seed=0)
     free = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels))
@@ -242,6 +246,9 @@ def test_an_episode_asks_its_cell_which_grasps_the_arm_reaches_once_per_grasp(cy
     episode.slots(episode.plan("oracle"), ["side"])
     assert cell.checked == checked  # remembered per grasp
     assert all(episode.execute(slot).failure != "unreachable" for slot in slots[:3])
+    checked, disturbed = cell.checked, cell.checked_disturbed  # execute's own check runs in the scene it moves
+    episode.reaches(np.eye(4), 0.05)  # a grasp not checked before
+    assert cell.checked == checked + 1 and cell.checked_disturbed == disturbed  # in the scene a slot will find
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:

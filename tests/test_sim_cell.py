@@ -98,6 +98,25 @@ def test_arm_reports_unreachable_pose(box):
             cell.check_reach(T, -0.01)
 
 
+def test_a_grasp_whose_motion_would_hit_the_object_is_refused_by_check_reach_as_by_execute(tmp_path):
+    tall = primitive_object("box", (0.04, 0.04, 0.30), tmp_path, mass=0.3)
+    with SimCell([tall], embodiment="arm", seed=0, image_size=IMAGE) as cell:
+        _, T_world_obj = cell.object_mesh()
+        T = np.eye(4)  # a side grasp from behind the 30 cm box, towards the robot: the arm has to pass through it
+        T[:3, 0], T[:3, 1], T[:3, 2] = [0.0, -1.0, 0.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 0.0]
+        T[:3, 3] = T_world_obj[:3, 3] + [0.0, 0.0, 0.1]
+        start, fingers = cell.robot.joint_positions(), cell.robot.gripper.width()
+        reason = cell.check_reach(T, 0.04)
+        assert reason.startswith("robot would hit the object"), reason
+        _, T_after = cell.object_mesh()
+        np.testing.assert_allclose(T_after, T_world_obj, atol=1e-9)  # nothing moved
+        np.testing.assert_allclose(cell.robot.joint_positions(), start, atol=1e-6)
+        assert cell.robot.gripper.width() == pytest.approx(fingers, abs=1e-6)
+        outcome = cell.execute(T, 0.04)
+        assert not outcome.reachable and outcome.failure == "collision" and outcome.message == reason
+        assert cell.check_reach(top_down_grasp(T_world_obj, 0.28), 0.04) == ""  # from above the arm gets there
+
+
 def test_same_seed_same_scene_frames_and_outcome(box):
     results = []
     for _ in range(2):
