@@ -39,8 +39,10 @@ from seggrasp.truth import DetectorSpec, GroundTruth
 LOG = logging.getLogger(__name__)
 #: Label-based selection puts the grasps whose pads each press mostly on the labelled part first.
 PAD_FOOTPRINT = PadFootprint()
-#: Slot planning looks this many times top-k deep into each prompt's ranked grasps for ones the arm reaches.
+#: Slot planning looks this many times top-k deep into each prompt's ranked grasps for ones the arm reaches, and
+#: at least `MIN_REACH_DEPTH` deep (a top-1 request still gets the best grasp among its 30 best the cell executes).
 REACH_DEPTH = 3
+MIN_REACH_DEPTH = 30
 
 
 @dataclass
@@ -176,9 +178,9 @@ def plan_slots(
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
     probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
     pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world. With `reaches` (world pose, width ->
-    whether the arm reaches the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k come first, in
-    rank order; unreachable ones fill the slots left."""
-    depth = top_k if reaches is None else REACH_DEPTH * top_k
+    whether the arm reaches the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least
+    `MIN_REACH_DEPTH`) come first, in rank order; unreachable ones fill the slots left."""
+    depth = top_k if reaches is None else max(REACH_DEPTH * top_k, MIN_REACH_DEPTH)
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:

@@ -199,6 +199,8 @@ def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others
     slots = plan_slots(plan, grasps, observation, 3, [1], top_k=3, reaches=reaches)
     assert [grasp_at(s.grasp.poses[0]) for s in slots] == [1, 3, 4]  # rank order among the reachable ones
     assert asked == [0, 1, 2, 3, 4]  # checked only until three reachable ones were found
+    (top1,) = plan_slots(plan, grasps, observation, 3, [1], top_k=1, reaches=lambda T, w: grasp_at(T) == 6)
+    assert grasp_at(top1.grasp.poses[0]) == 6  # a top-1 request looks further than three grasps deep
     asked.clear()
     few = plan_slots(plan, grasps, observation, 3, [1], top_k=3, reaches=lambda T, w: grasp_at(T) == 5)
     assert [grasp_at(s.grasp.poses[0]) for s in few] == [5, 0, 1]  # unreachable ones fill the slots left
