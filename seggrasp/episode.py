@@ -178,7 +178,7 @@ def plan_slots(
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
     probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
     pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world. With `reaches` (world pose, width ->
-    whether the arm reaches the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least
+    whether the cell would execute the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least
     `MIN_REACH_DEPTH`) come first, in rank order; unreachable ones fill the slots left."""
     depth = top_k if reaches is None else max(REACH_DEPTH * top_k, MIN_REACH_DEPTH)
     if plan.own_grasps is not None:
@@ -355,7 +355,7 @@ class Episode:
                           self.reaches)
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
-        """Whether the cell's arm reaches this grasp (`Cell.check_reach`, in the scene as a slot's execution will
+        """Whether the cell would execute this grasp (`Cell.check_reach`, in the scene as a slot's execution will
         find it: reset first if a grasp was executed since; remembered per grasp)."""
         key = grasp_key(T_world_grasp, width)
         if key not in self._reach:
@@ -363,7 +363,7 @@ class Episode:
                 self._reset_scene()
             reason = self.cell.check_reach(T_world_grasp, width)
             if reason:
-                LOG.debug("grasp out of the arm's reach: %s", reason)
+                LOG.debug("grasp the cell would refuse: %s", reason)
             self._reach[key] = not reason
         return self._reach[key]
 
