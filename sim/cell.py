@@ -310,7 +310,7 @@ class GraspPrimitive:
         candidates, refusal = self.plan(T_world_grasp, width)
         if not candidates:
             return None, "unreachable", refusal
-        opening = min(width + self.settings.width_margin, self.gripper.max_width)
+        opening = self._opening(width)
         start, fingers, reasons = self.robot.configuration(), self.gripper.width(), []
         plan = None
         for candidate in candidates:  # IK branches, nearest home first
@@ -330,6 +330,10 @@ class GraspPrimitive:
                 f" (and {len(reasons) - 1} other paths collide)" if len(reasons) > 1 else "")
         return plan, "", ""
 
+    def _opening(self, width: float) -> float:
+        """The finger opening for the approach: the grasp's width plus `width_margin`, within the stroke."""
+        return min(width + self.settings.width_margin, self.gripper.max_width)
+
     def run(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         plan, failure, message = self.motion(T_world_grasp, width)
         if plan is None:
@@ -337,7 +341,7 @@ class GraspPrimitive:
                 self.gripper.set_width(self.gripper.max_width)
             return GraspOutcome(False, False, 0.0, message=message, failure=failure)
         transit, paths = plan
-        self.gripper.set_width(min(width + self.settings.width_margin, self.gripper.max_width))
+        self.gripper.set_width(self._opening(width))
         self.robot.move_free(transit)
         self._snap("pre-grasp")
         return self._grasp_and_lift(paths)
