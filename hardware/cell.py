@@ -70,6 +70,8 @@ def judge_hold(closed_on_object: bool, held: bool, width_closed: float, width_he
 class RealCell:
     """The real robot cell. Build it with `RealCell.from_config(path, dry_run=False)`."""
 
+    models_scene = False  # `check_reach` checks IK and the safety limits only: it knows nothing of the object
+
     def __init__(self, config: CellConfig, arm: URArm, gripper: RobotiqGripper, cameras: list[RealSenseCamera],
                  *, dry_run: bool = False) -> None:
         self.config = config

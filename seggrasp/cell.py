@@ -90,6 +90,12 @@ class GraspOutcome:
 class Cell(Protocol):
     """A robot cell: cameras, an arm with a parallel gripper, and one object on a table."""
 
+    #: Whether the cell's `check_reach` looks at a model of the scene (the twin: it poses the simulated robot among
+    #: the table and the object). Such a cell checks in a freshly reset scene and executes every grasp from a reset,
+    #: so no outcome depends on the checks made before it. A cell that checks only its arm (the real cell) is reset
+    #: only when a grasp has been executed since the last reset: one reset ("place the object") per grasp.
+    models_scene: bool
+
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
         """Put the scene in its start state (the same seed gives the same scene)."""
 

@@ -355,11 +355,11 @@ class Episode:
                           self.reaches)
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
-        """Whether the cell would execute this grasp (`Cell.check_reach`, in the scene as a slot's execution will
-        find it: reset first if a grasp was executed since; remembered per grasp)."""
+        """Whether the cell would execute this grasp (`Cell.check_reach`; remembered per grasp). A cell that models
+        the scene checks it as a slot's execution will find it: reset first if a grasp was executed since."""
         key = grasp_key(T_world_grasp, width)
         if key not in self._reach:
-            if not self._scene_fresh:
+            if self.cell.models_scene and not self._scene_fresh:
                 self._reset_scene()
             reason = self.cell.check_reach(T_world_grasp, width)
             if reason:
@@ -386,7 +386,9 @@ class Episode:
         return records
 
     def execute(self, slot: Slot, reset: bool = True) -> TrialRecord:
-        """Execute one slot's grasp (from a fresh reset of the scene unless `reset` is False) and score it."""
+        """Execute one slot's grasp and score it: from a reset of the scene unless `reset` is False, where a cell
+        that does not model the scene (`Cell.models_scene`) skips the reset when nothing was executed since the last
+        one."""
         context = self.context
         record = TrialRecord(
             object_id=context.object_id, category=context.category, method=slot.method, detector=slot.detector,
@@ -440,7 +442,7 @@ class Episode:
         if self.outcome_cache is not None and key in self.outcome_cache:
             record.reused_outcome = True
             return self.outcome_cache[key]
-        if reset:
+        if reset and (self.cell.models_scene or not self._scene_fresh):
             self._reset_scene()
         self._scene_fresh = False
         outcome = self.cell.execute(T_world_grasp, width)

@@ -108,6 +108,8 @@ class CameraRig:
 class SimCell:
     """The simulated cell. `objects` defaults to the twin (`seggrasp.objects.load_asset_set()`)."""
 
+    models_scene = True  # `check_reach` poses the simulated robot among the table and the object
+
     def __init__(
         self,
         objects: list[ObjectModel] | None = None,

@@ -209,14 +209,15 @@ def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others
 
 class OutOfReachCell:
     """A cell on a fixed mesh whose arm reaches no grasp centred above `z_limit` (world = object frame); it counts
-    the checks made in a scene a grasp was executed in since the last reset (`checked_disturbed`)."""
+    its resets and the checks made in a scene a grasp was executed in since the last reset (`checked_disturbed`)."""
 
-    def __init__(self, mesh: trimesh.Trimesh, z_limit: float) -> None:
-        self.mesh, self.z_limit, self.checked = mesh, z_limit, 0
-        self.disturbed, self.checked_disturbed = False, 0
+    def __init__(self, mesh: trimesh.Trimesh, z_limit: float, models_scene: bool = True) -> None:
+        self.mesh, self.z_limit, self.models_scene, self.checked = mesh, z_limit, models_scene, 0
+        self.disturbed, self.checked_disturbed, self.resets = False, 0, 0
 
     def reset(self, seed=None, object_id=None) -> None:
         self.disturbed = False
+        self.resets += 1
 
     def object_mesh(self):
         return self.mesh, np.eye(4)
@@ -251,6 +252,25 @@ def test_an_episode_asks_its_cell_which_grasps_it_can_execute_once_per_grasp_in_
     checked, disturbed = cell.checked, cell.checked_disturbed  # execute's own check runs in the scene it moves
     episode.reaches(np.eye(4), 0.05)  # a grasp not checked before
     assert cell.checked == checked + 1 and cell.checked_disturbed == disturbed  # in the scene a slot will find
+
+
+@pytest.mark.parametrize("models_scene", [True, False])
+def test_a_cell_that_checks_only_its_arm_is_reset_once_per_grasp(cylinder, models_scene) -> None:
+    """The real cell's reset asks a person to place the object: it comes once per executed grasp, whatever is
+    checked in between; the twin checks and executes from fresh resets (no outcome depends on earlier checks)."""
+    mesh, labels = cylinder.mesh, cylinder.labels.face_labels
+    context = EpisodeContext("cylinder", "cylinder", ["top", "side", "bottom"], scene_seed=0)
+    cell = OutOfReachCell(mesh, np.inf, models_scene=models_scene)
+    episode = Episode(cell, context, None, GroundTruth(mesh, labels), EpisodeSettings(top_k=2))
+    records = episode.run("oracle", ["side"])  # observes, checks, executes two grasps
+    episode.reaches(np.eye(4), 0.05)  # a grasp not checked before, as when the next method is planned
+    records.append(episode.execute(episode.slots(episode.plan("oracle"), ["side"])[0]))
+    assert [r.executed for r in records] == [True, True, True]
+    if models_scene:  # observe; before each execution; before the new check
+        assert cell.resets == 1 + 3 + 1
+    else:  # the first grasp goes in the scene just observed, and the new check needs no scene
+        assert cell.resets == 3
+
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:

@@ -79,6 +79,8 @@ def test_pad_contacts_of_a_box_and_of_an_empty_sweep() -> None:
 class StillCell:
     """A cell whose grasps reach but never lift and touch nothing; it counts its executions."""
 
+    models_scene = False
+
     def __init__(self, mesh: trimesh.Trimesh) -> None:
         self.mesh, self.executed = mesh, 0
 
