@@ -386,9 +386,8 @@ class Episode:
         return records
 
     def execute(self, slot: Slot, reset: bool = True) -> TrialRecord:
-        """Execute one slot's grasp and score it: from a reset of the scene unless `reset` is False, where a cell
-        that does not model the scene (`Cell.models_scene`) skips the reset when nothing was executed since the last
-        one."""
+        """Execute one slot's grasp and score it. The scene is reset first unless `reset` is False, or the cell does
+        not model the scene (`Cell.models_scene`) and nothing was executed since its last reset."""
         context = self.context
         record = TrialRecord(
             object_id=context.object_id, category=context.category, method=slot.method, detector=slot.detector,
