@@ -30,9 +30,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_seg import LabelledMesh, _paired, quality_report, twin_meshes, ycb_meshes  # noqa: E402
+from bench_seg import LabelledMesh, paired_over_seeds, quality_report, twin_meshes, ycb_meshes  # noqa: E402
 from seggrasp.decompose import DecompositionConfig, decompose_sweep  # noqa: E402
 from seggrasp.detect.base import Detections  # noqa: E402
+from seggrasp.detect.hf_common import box_iou  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.fusion import refine_labels, refine_scores  # noqa: E402
 from seggrasp.io import atomic_write_text  # noqa: E402
@@ -46,14 +47,6 @@ VARIANTS = {"specificity^0.5": ("specificity", 0.5), "specificity^1": ("specific
             "contrast": ("contrast", 1.0), "half contrast": ("contrast", 0.5)}
 
 
-def box_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU matrix of xyxy boxes a (n, 4) and b (m, 4)."""
-    low, high = np.maximum(a[:, None, :2], b[None, :, :2]), np.minimum(a[:, None, 2:], b[None, :, 2:])
-    inter = np.prod(np.clip(high - low, 0.0, None), axis=-1)
-    area_a, area_b = (np.prod(boxes[:, 2:] - boxes[:, :2], axis=-1) for boxes in (a, b))
-    return inter / np.maximum(area_a[:, None] + area_b[None, :] - inter, 1e-12)
-
-
 def box_weights(view: View, found: Detections, kind: str, parameter: float) -> np.ndarray:
     """The factor each box's confidence is multiplied by (see the module docstring)."""
     if kind == "specificity":
@@ -64,7 +57,8 @@ def box_weights(view: View, found: Detections, kind: str, parameter: float) -> n
         return (len(rows) / np.maximum(covered, 1)) ** parameter
     if kind == "contrast":
         other_prompt = found.prompt_index[:, None] != found.prompt_index[None, :]
-        overlap = np.where(other_prompt, box_iou(found.boxes, found.boxes), 0.0).max(axis=1)
+        ious = np.stack([box_iou(box, found.boxes) for box in found.boxes])
+        overlap = np.where(other_prompt, ious, 0.0).max(axis=1)
         return 1.0 - parameter * overlap
     raise ValueError(f"unknown box weighting {kind!r}; choose specificity or contrast")
 
@@ -105,7 +99,8 @@ def variant_table(records: list[dict]) -> str:
     lines = ["| variant | coarse - coarse (eq. 1) | default - default (eq. 1) |", "|---|---|---|"]
     for name in VARIANTS:
         (d_coarse, se_coarse), (d_default, se_default) = (
-            _paired(records, f"coarse, {name}", "none"), _paired(records, f"default, {name}", "default"))
+            paired_over_seeds(records, f"coarse, {name}", "none"),
+            paired_over_seeds(records, f"default, {name}", "default"))
         lines.append(f"| {name} | {d_coarse:+.3f} +- {se_coarse:.3f} | {d_default:+.3f} +- {se_default:.3f} |")
     return "\n".join(lines) + "\n"
 

@@ -460,7 +460,7 @@ def quality_records(items: list[LabelledMesh], args) -> list[dict]:
     return records
 
 
-def _paired(records: list[dict], method: str, against: str) -> tuple[float, float]:
+def paired_over_seeds(records: list[dict], method: str, against: str) -> tuple[float, float]:
     """Mean over seeds of the per-seed category-mean mIoU difference method - against, and its standard error."""
     seeds = sorted({r["seed"] for r in records})
     per_seed = [[mean_over_categories([(r["category"], r["miou"][m]) for r in records if r["seed"] == s])["overall"]
@@ -490,12 +490,12 @@ def quality_report(records: list[dict], title: str) -> str:
              "| method | mIoU | vs coarse | vs GeoFusion | " + " | ".join(categories) + " |",
              "|---|---|---|---|" + "---|" * len(categories)]
     for m in methods:
-        d_coarse, se_coarse = _paired(records, m, "none")
-        d_geo, se_geo = _paired(records, m, "full")
+        d_coarse, se_coarse = paired_over_seeds(records, m, "none")
+        d_geo, se_geo = paired_over_seeds(records, m, "full")
         lines.append(f"| {METHOD_NAMES.get(m, m)} | {summaries[m]['overall']:.3f} | {d_coarse:+.3f} +- {se_coarse:.3f} "
                      f"| {d_geo:+.3f} +- {se_geo:.3f} | "
                      + " | ".join(f"{summaries[m]['categories'][c]:.3f}" for c in categories) + " |")
-    d_coarse, se_coarse = _paired(records, "default", "none")
+    d_coarse, se_coarse = paired_over_seeds(records, "default", "none")
     below = [c for c in categories if summaries["default"]["categories"][c] <= summaries["full"]["categories"][c]]
     gaps = {n: np.mean(e["miou"]["default"]) - np.mean(e["miou"]["full"]) for n, e in per_mesh.items()}
     worst = min(gaps, key=gaps.get)
@@ -507,7 +507,8 @@ def quality_report(records: list[dict], title: str) -> str:
               "default - coarse |", "|---|---|---|---|---|---|"]
     for c in categories:
         in_category = [r for r in records if r["category"] == c]
-        (d_geo, se_geo), (d_coarse, se_coarse) = (_paired(in_category, "default", m) for m in ("full", "none"))
+        (d_geo, se_geo), (d_coarse, se_coarse) = (paired_over_seeds(in_category, "default", m)
+                                                  for m in ("full", "none"))
         means = " | ".join(f"{summaries[m]['categories'][c]:.3f}" for m in ("none", "full", "default"))
         lines.append(f"| {c} | {means} | {d_geo:+.3f} +- {se_geo:.3f} | {d_coarse:+.3f} +- {se_coarse:.3f} |")
     lines += ["", "| mesh | category | coarse | GeoFusion | default | default - GeoFusion (+- SE over seeds) |",

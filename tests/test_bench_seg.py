@@ -38,7 +38,7 @@ def test_quality_report_pairs_seeds_and_flags_categories_and_meshes_below_geofus
 
     records = [record("a1", "a", 0, 0.3, 0.4, 0.6), record("a1", "a", 1, 0.5, 0.6, 0.6),
                record("b1", "b", 0, 0.3, 0.5, 0.4), record("b1", "b", 1, 0.3, 0.5, 0.5)]
-    mean, se = bench_seg._paired(records, "default", "none")
+    mean, se = bench_seg.paired_over_seeds(records, "default", "none")
     # per-seed category-mean differences: seed 0 (0.3 + 0.1) / 2 = 0.2, seed 1 (0.1 + 0.2) / 2 = 0.15
     assert mean == pytest.approx(0.175) and se == pytest.approx(0.025)
     report = bench_seg.quality_report(records, "test")
