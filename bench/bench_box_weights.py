@@ -40,7 +40,7 @@ from seggrasp.io import atomic_write_text  # noqa: E402
 from seggrasp.metrics import shape_miou  # noqa: E402
 from seggrasp.render import camera_rig, render_views  # noqa: E402
 from seggrasp.views import View  # noqa: E402
-from seggrasp.vote import labels_from_scores, vote  # noqa: E402
+from seggrasp.vote import labels_from_scores, pixels_in_boxes, vote  # noqa: E402
 
 #: Variant name -> (kind, parameter); eq. 1 itself is the baseline.
 VARIANTS = {"specificity^0.5": ("specificity", 0.5), "specificity^1": ("specificity", 1.0),
@@ -50,11 +50,8 @@ VARIANTS = {"specificity^0.5": ("specificity", 0.5), "specificity^1": ("specific
 def box_weights(view: View, found: Detections, kind: str, parameter: float) -> np.ndarray:
     """The factor each box's confidence is multiplied by (see the module docstring)."""
     if kind == "specificity":
-        rows, cols = np.nonzero(view.face_ids >= 0)
-        u, v = cols + 0.5, rows + 0.5
-        x0, y0, x1, y1 = (found.boxes[:, k, None] for k in range(4))
-        covered = ((x0 <= u) & (u <= x1) & (y0 <= v) & (v <= y1)).sum(axis=1)
-        return (len(rows) / np.maximum(covered, 1)) ** parameter
+        faces, inside = pixels_in_boxes(view, found.boxes)
+        return (len(faces) / np.maximum(inside.sum(axis=1), 1)) ** parameter
     if kind == "contrast":
         other_prompt = found.prompt_index[:, None] != found.prompt_index[None, :]
         ious = np.stack([box_iou(box, found.boxes) for box in found.boxes])

@@ -5,8 +5,9 @@
 
 For each (object, part) the twin's mesh is cut by a vertical plane through the part's centroid, across the part's
 long horizontal axis, with the object as the twin drops it on the table (its mesh frame, lowest point on the
-table; settling moves part tops by about a millimetre: twin-physics.md has them measured after settling). Two panels show the section (the part in colour, the rest grey) with the sampler's box model of the 2F-85
-fingers (`seggrasp.grasp.types.GripperGeometry`) straight down at its lowest poses (`AntipodalConfig`):
+table; settling moves part tops by about a millimetre: twin-physics.md has them measured after settling). Two
+panels show the section (the part in colour, the rest grey) with the sampler's box model of the 2F-85 fingers
+(`seggrasp.grasp.types.GripperGeometry`) straight down at its lowest poses (`AntipodalConfig`):
 
 - an ordinary grasp: fingertips `table_clearance` above the table, contact at the deepest `contact_depths` entry;
 - a fingertip pinch: fingertips `pinch_table_clearance` above the table, the pads touching the part's side over
@@ -157,8 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         png = plot_part(name, part, segments, on_part, heights, config, gripper)
         path = args.out / f"{name}-{part}-section.png"
         atomic_write_bytes(path, png)
-        table = float(model.mesh.vertices[:, 2].min())
-        part_top = float(model.mesh.vertices[model.mesh.faces[part_faces]][..., 2].max()) - table
+        part_top = float(model.mesh.vertices[model.mesh.faces[part_faces]][..., 2].max() - model.mesh.bounds[0, 2])
         print(f"| {name} | {part} | {part_top * MM:.1f} | {segments[on_part][..., 1].max() * MM:.1f} | {path.name} |")
     return 0
 

@@ -36,13 +36,9 @@ def vote(views: Sequence[View], detections: Sequence[Detections], n_faces: int, 
             raise ValueError(f"view {index}: prompt index outside 0..{n_prompts - 1}: {found.prompt_index.tolist()}")
         if np.any(found.scores < 0) or not np.all(np.isfinite(found.boxes)):
             raise ValueError(f"view {index}: boxes must be finite with non-negative confidences")
-        rows, cols = np.nonzero(view.face_ids >= 0)
-        faces = view.face_ids[rows, cols]
+        faces, inside = pixels_in_boxes(view, found.boxes)
         if len(faces) and faces.max() >= n_faces:
             raise ValueError(f"view {index} shows face {int(faces.max())} but the mesh has {n_faces} faces")
-        centre_u, centre_v = cols + 0.5, rows + 0.5
-        x0, y0, x1, y1 = (found.boxes[:, k, None] for k in range(4))
-        inside = (x0 <= centre_u) & (centre_u <= x1) & (y0 <= centre_v) & (centre_v <= y1)  # (boxes, pixels)
         box_of_hit, pixel_of_hit = np.nonzero(inside)
         flat_scores += np.bincount(
             faces[pixel_of_hit] * n_prompts + found.prompt_index[box_of_hit],
@@ -52,6 +48,16 @@ def vote(views: Sequence[View], detections: Sequence[Detections], n_faces: int, 
     logger.info("voted %d boxes of %d views into %d faces x %d prompts in %.1f s", sum(len(d) for d in detections),
                 len(views), n_faces, n_prompts, time.perf_counter() - started)
     return flat_scores.reshape(n_faces, n_prompts)
+
+
+def pixels_in_boxes(view: View, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The face id of every object pixel of `view`, and the (boxes, pixels) mask of the pixels whose centres lie in
+    each xyxy box (the module docstring's convention)."""
+    rows, cols = np.nonzero(view.face_ids >= 0)
+    centre_u, centre_v = cols + 0.5, rows + 0.5
+    x0, y0, x1, y1 = (boxes[:, k, None] for k in range(4))
+    inside = (x0 <= centre_u) & (centre_u <= x1) & (y0 <= centre_v) & (centre_v <= y1)
+    return view.face_ids[rows, cols], inside
 
 
 def labels_from_scores(scores: np.ndarray) -> np.ndarray:
