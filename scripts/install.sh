@@ -24,3 +24,5 @@ else
   pip_install "${extra[@]}" -c "$without_pyopengl" -e ".[dev]"
   pip_install -c constraints.txt "PyOpenGL>=3.1.7"
 fi
+echo "install.sh: done. pip's 'ERROR ... pyrender 0.1.45 requires PyOpenGL==3.1.0' above is expected: PyOpenGL" \
+     ">= 3.1.7 is installed on purpose (3.1.0 cannot render through OSMesa)."

@@ -3,9 +3,11 @@
 # when neither works, one message naming the packages and exit code 1.
 #   libosmesa6    OSMesa, the software OpenGL that renders the views headless (seggrasp/gl.py)
 #   libusb-1.0-0  USB access for pyrealsense2 (the real cell's cameras)
+#   iproute2      `ip`, to bring up loopback in the emulated lab cell's private network namespace (sim/lab)
+#   util-linux    `unshare`, which makes that namespace
 set -euo pipefail
 
-packages=(libosmesa6 libusb-1.0-0)
+packages=(libosmesa6 libusb-1.0-0 iproute2 util-linux)
 
 if ! command -v dpkg-query >/dev/null; then
   echo "system_packages.sh: not a Debian-based system; make sure these libraries are installed: ${packages[*]}" >&2
