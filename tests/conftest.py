@@ -18,15 +18,16 @@ try:
 except ImportError:  # pragma: no cover - torch is a hard dependency, but keep collection readable
     pass
 
-YCB_DIR = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "ycb"
-
-
 @pytest.fixture(scope="session")
 def ycb_dir() -> Path:
-    """The shared YCB scans; tests that need them skip when the folder is absent."""
-    if not YCB_DIR.is_dir():
-        pytest.skip(f"YCB scans not found at {YCB_DIR}")
-    return YCB_DIR
+    """The YCB scans (`$SEGGRASP_YCB_DIR`, else shared/data/ycb beside the repository: `seggrasp.datasets`); tests
+    that need them skip when the folder is absent."""
+    from seggrasp.datasets import ycb_data_dir
+
+    folder = ycb_data_dir()
+    if not folder.is_dir():
+        pytest.skip(f"YCB scans not found at {folder} (set SEGGRASP_YCB_DIR; see assets/ycb/README.md)")
+    return folder
 
 
 @pytest.fixture(scope="session")
