@@ -1,6 +1,6 @@
 """The robot-cell interface that both backends implement (`sim.SimCell`, `hardware.RealCell`).
 
-Frames follow DESIGN.md: `world` has the robot base at the origin and z up; cameras use the OpenCV convention
+Frames follow docs/design.md section 3: `world` has the robot base at the origin and z up; cameras use the OpenCV convention
 (x right, y down, z forward); `T_a_b` maps coordinates in frame b to frame a. The gripper frame has z along the
 approach direction, x along the closing direction (finger to finger) and its origin between the fingertips.
 """

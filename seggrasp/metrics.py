@@ -1,4 +1,4 @@
-"""Evaluation metrics (DESIGN.md section 5): part IoU / mIoU for segmentation, and the grasp metrics.
+"""Evaluation metrics (docs/design.md section 5): part IoU / mIoU for segmentation, and the grasp metrics.
 
 Segmentation. For a shape with ground-truth labels `gt` and predicted labels `pred` (one int per face, -1 =
 unknown), the IoU of ground-truth part k is |pred=k AND gt=k| / |pred=k OR gt=k|, measured in face area

@@ -12,7 +12,7 @@ the slide's travel). The pads keep the 2F-85's geometry and arc, stay parallel b
 passes one joint to the gripper body. The knuckles and outer fingers stay as servoed followers of the arc's angle:
 they are seen by the cameras and collide, but carry no squeeze.
 
-Gripper frame (DESIGN.md): z = approach, x = closing direction, origin between the pad centres. The pad centres'
+Gripper frame (docs/design.md section 3): z = approach, x = closing direction, origin between the pad centres. The pad centres'
 height above the gripper base depends on the opening (the arc), so `T_base_tcp(width)` gives the frame for the
 width at which the pads will meet the object.
 """

@@ -1,6 +1,6 @@
 """The PyBullet world: one physics client, the table, object bodies, pose conversions and stepping.
 
-World frame (DESIGN.md): the robot base at the origin, z up. The robot stands on the table, so the table top is
+World frame (docs/design.md section 3): the robot base at the origin, z up. The robot stands on the table, so the table top is
 the plane z = `TABLE_TOP_Z` = 0. Objects are placed in a workspace in front of the robot (+x).
 """
 

@@ -1,6 +1,6 @@
 """Grasp containers, the parallel-gripper geometry and the `GraspGenerator` protocol.
 
-Gripper frame (DESIGN.md): z = approach direction, x = closing direction (finger to finger), origin between the
+Gripper frame (docs/design.md section 3): z = approach direction, x = closing direction (finger to finger), origin between the
 pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two contact points of an antipodal grasp.
 """
 
