@@ -33,6 +33,10 @@ class Frame:
 #: fifth round); lower it in cell.yaml for fragile objects.
 GRIP_FORCE_RANGE = (20.0, 235.0)
 DEFAULT_GRIP_FORCE = 235.0
+#: The 2F-85's finger speed range (m/s, datasheet: 20-150 mm/s), spanned linearly by the URCap's SPE register
+#: 0-255; shared by the real cell (hardware/robotiq.py, hardware/config.py) and the emulated lab cell's gripper
+#: (sim/lab/robotiq.py), which may not import hardware/.
+FINGER_SPEED_RANGE = (0.020, 0.150)
 
 # Success as a lab judges it, the same on both backends: the grasped point rises at least LIFT_SUCCESS (m; the
 # lift is 20 cm) and the object moves less than MAX_SLIP (m) and MAX_ROTATION_DEG in the fingers from the close to
