@@ -2,7 +2,7 @@
 
 This module is the ONE place where the project's 4x4 poses meet UR's pose vectors `[x, y, z, rx, ry, rz]`
 (position in metres, orientation as an axis-angle rotation vector): `ur_pose_from_matrix` and
-`matrix_from_ur_pose`. The world frame is the robot's base frame as RTDE reports it (DESIGN.md: robot base at the
+`matrix_from_ur_pose`. The world frame is the robot's base frame as RTDE reports it (docs/design.md section 3: robot base at the
 origin, z up). The controller's TCP is set to the project's gripper frame (`robot.tcp_offset` = `T_flange_gripper`:
 z = approach, x = closing direction, origin between the fingertips), so every pose the arm takes or reports is
 `T_world_gripper`.

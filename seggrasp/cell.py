@@ -29,7 +29,7 @@ class Frame:
 #: (`sim.gripper.GripperSettings`; a twin run sets another with `python -m sim.evaluate --grip-force N`), the grasp
 #: sampler's torque limit and the real cell (hardware/cell.example.yaml `gripper.force`, at the example's
 #: `limits.max_grip_force`; hardware/config.py's default). The default is the 2F-85's full force: pans, kettles and
-#: hammers held by their handles turn in the fingers under their own weight at 100 N (docs/results/twin-physics.md,
+#: hammers held by their handles turn in the fingers under their own weight at 100 N (docs/results/archive/twin-physics-rounds.md,
 #: fifth round); lower it in cell.yaml for fragile objects.
 GRIP_FORCE_RANGE = (20.0, 235.0)
 DEFAULT_GRIP_FORCE = 235.0

@@ -4,7 +4,7 @@ The 2F-85 is a parallel-pad gripper: its six-bar linkage moves each inner finger
 the outer knuckle's pivot without turning it. The description (assets/robots/) has that linkage opened into a tree
 of revolute joints, which PyBullet's iterative solver does not converge under a squeeze: at 100 iterations the
 pads splayed 3.5-5 deg apart, a thin shaft rolled between them and the grip force never exceeded ~100 N
-(docs/results/twin-physics-round4-roll.md). `simulated_urdf` therefore re-hangs each inner finger from the gripper
+(docs/results/archive/twin-physics-round4-roll.md). `simulated_urdf` therefore re-hangs each inner finger from the gripper
 body on two prismatic joints traced from the linkage's own kinematics: a closing slide (actuated: velocity control
 at the closing speed with the grip force as its limit until the fingers stall, then pushed with the grip force
 itself, as the 2F-85's motor squeezes; `Robotiq2F85.squeeze`) and a lift (servoed to the arc's height for

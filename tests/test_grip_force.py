@@ -118,7 +118,7 @@ def test_the_pads_still_squeeze_with_the_grip_force_at_the_end_of_an_arm_lift(tm
             cell.reset(seed=scene)
             _, T_world_obj = cell.object_mesh()
             outcomes.append(cell.execute(top_down_grasp(T_world_obj, 0.035), 0.02))
-    # a 20 g box squeezed at 235 N is occasionally shot out of the pads mid-lift (docs/results/twin-physics.md,
+    # a 20 g box squeezed at 235 N is occasionally shot out of the pads mid-lift (docs/results/archive/twin-physics-rounds.md,
     # twelfth round: 1 of 6 scenes on one machine): most scenes lift, each with the set squeeze
     lifted = [o for o in outcomes if o.lifted]
     assert len(lifted) >= 2, [o.message for o in outcomes]

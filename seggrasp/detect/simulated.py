@@ -1,4 +1,4 @@
-"""A simulated open-vocabulary detector driven by ground-truth part labels (DESIGN.md section 4).
+"""A simulated open-vocabulary detector driven by ground-truth part labels (docs/design.md section 4).
 
 No detector weights can be downloaded on the twin, so the detector is simulated the way a camera is: from what the
 twin knows. For every view and prompt it finds the visible pixels of the prompted part's faces, draws their tight

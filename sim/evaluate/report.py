@@ -79,7 +79,7 @@ def failure_name(record: dict) -> str:
 
 
 def grasp_metrics(rows: list[dict]) -> dict:
-    """Per-request Part Sel. and Suc. over all slots, top-1 Suc., the executed-only figures (DESIGN.md section 5;
+    """Per-request Part Sel. and Suc. over all slots, top-1 Suc., the executed-only figures (docs/design.md section 5;
     each metric's rule is stats.GRASP_METRICS, which the intervals use too), sigma^2 of the executed grasps'
     orientations per request, and the failure counts."""
     executed = [r for r in rows if r["executed"]]
