@@ -27,10 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench_seg import LabelledMesh, paired_over_seeds, quality_report, twin_meshes, ycb_meshes  # noqa: E402
+from bench.bench_seg import LabelledMesh, paired_over_seeds, quality_report, twin_meshes, ycb_meshes  # noqa: E402
 from seggrasp.decompose import DecompositionConfig, decompose_sweep  # noqa: E402
 from seggrasp.detect.base import Detections  # noqa: E402
 from seggrasp.detect.hf_common import box_iou  # noqa: E402

@@ -20,8 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_selection import per_request, read_trials  # noqa: E402
+from bench.bench_selection import per_request, read_trials  # noqa: E402
 
 from seggrasp.io import atomic_write_text  # noqa: E402
 from sim.evaluate.records import seed_of  # noqa: E402

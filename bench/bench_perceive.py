@@ -23,7 +23,6 @@ import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.io import atomic_write_json  # noqa: E402

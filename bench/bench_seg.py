@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np  # noqa: E402
 import trimesh  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seggrasp.decompose import PAPER_THRESHOLDS, DecompositionConfig, SweepStats, decompose_sweep, default_cache_dir  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402

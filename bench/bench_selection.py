@@ -477,5 +477,4 @@ FOOTER = [
 ]
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     sys.exit(main())

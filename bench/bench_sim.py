@@ -103,8 +103,7 @@ def _line(label: str, r: dict[str, float], trials: int) -> str:
 #: One arm trial on the benchmark box in a fresh process, printed as JSON; run inside either checkout.
 ONE_ARM_TRIAL = """
 import json, sys, tempfile
-sys.path.insert(0, "bench")
-from bench_sim import bench_embodiment
+from bench.bench_sim import bench_embodiment
 from sim.primitives import primitive_object
 with tempfile.TemporaryDirectory() as tmp:
     box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)

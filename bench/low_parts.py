@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import io
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,6 @@ from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from seggrasp.grasp.antipodal import AntipodalConfig  # noqa: E402
 from seggrasp.grasp.types import GripperGeometry  # noqa: E402

@@ -1,13 +1,10 @@
 """bench/bench_box_weights.py: how specific a box is, and eq. 1 with the boxes reweighted."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-bench_box_weights = pytest.importorskip("bench_box_weights")
+from bench import bench_box_weights  # noqa: E402
 
 from seggrasp.detect.base import Detections  # noqa: E402
 from seggrasp.views import View  # noqa: E402

@@ -1,14 +1,11 @@
 """bench/bench_compare_runs.py pairs one method's requests across two runs and clusters the error by object."""
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-bench_compare_runs = pytest.importorskip("bench_compare_runs")
+from bench import bench_compare_runs  # noqa: E402
 
 
 def _run(folder: Path, lifted: dict[tuple[str, str], int]) -> Path:

@@ -1,14 +1,11 @@
 """bench/low_parts.py: the fingers' lowest contacts and the section across a part."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-low_parts = pytest.importorskip("low_parts")
+from bench import low_parts  # noqa: E402
 
 from seggrasp.grasp.antipodal import AntipodalConfig  # noqa: E402
 from seggrasp.grasp.types import GripperGeometry  # noqa: E402

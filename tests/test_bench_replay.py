@@ -2,13 +2,10 @@
 
 import argparse
 import json
-import sys
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-bench_replay = pytest.importorskip("bench_replay")
+from bench import bench_replay  # noqa: E402
 
 
 def test_settings_are_iterations_and_force():

@@ -1,9 +1,7 @@
 """bench/bench_seg.py: a cold benchmark sweep runs CoACD (never served from the bundled twin caches)."""
 
 import re
-import sys
 import types
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,8 +10,7 @@ import seggrasp.decompose as decompose
 import seggrasp.decompose.workers as workers
 from seggrasp.decompose import DecompositionConfig
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-bench_seg = pytest.importorskip("bench_seg")
+from bench import bench_seg  # noqa: E402
 
 
 def test_cold_sweep_of_a_twin_object_runs_coacd_despite_the_bundled_cache(monkeypatch, tmp_path, twin_knife):

@@ -1,13 +1,11 @@
 """bench/bench_selection.py: per-request figures over seeds, paired differences and the done-when checks."""
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-bench_selection = pytest.importorskip("bench_selection")
+from bench import bench_selection  # noqa: E402
 
 #: per method the (on part, success) of each of a request's two slots, the same for every request; None = no grasp
 SLOTS = {"seggrasp": [(True, True), (True, False)], "coarse": [(True, False), None],

@@ -1,15 +1,12 @@
 """bench/bench_selection_gap.py: rebuilt objects are scored, lost slots get their cause, bad input is a clear error."""
 
 import pickle
-import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 import trimesh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-gap = pytest.importorskip("bench_selection_gap")
+from bench import bench_selection_gap as gap  # noqa: E402
 
 
 def write_object(cache: Path, swapped: bool) -> None:
