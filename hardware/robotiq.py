@@ -8,8 +8,12 @@ ATR (automatic release), GTO (go to the requested position), POS (requested/actu
 closing, 3 reached the request without an object) and FLT (fault code, 0 = none).
 
 Registers map to SI units linearly: the finger opening is `stroke` at `open_register` and 0 at `closed_register`
-(read the two after activation with `calibrate_range()`); speed 0-255 spans 20-150 mm/s and force 0-255 spans
-20-235 N (2F-85 datasheet; both approximate).
+(read the two after activation with `calibrate_range()`); speed 0-255 spans `FINGER_SPEED_RANGE` and force 0-255
+`GRIP_FORCE_RANGE` (2F-85 datasheet, `seggrasp.cell`; both approximate).
+
+Deadlines: every reply within `gripper.timeout`; a finger motion within its travel at the commanded speed plus
+`gripper.timeout` (`motion_timeout`). Under the robot's emergency stop the URCap answers ``<VAR> ?`` to every GET:
+the client raises a `GripperError` that names the e-stop.
 """
 
 from __future__ import annotations
@@ -22,9 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hardware.config import FINGER_SPEED_RANGE, GRIP_FORCE_RANGE, GripperConfig
+from hardware.config import GripperConfig
 from hardware.errors import ConnectionLostError, GripperError, SafetyError
 from hardware.safety import SafetyGuard
+from seggrasp.cell import FINGER_SPEED_RANGE, GRIP_FORCE_RANGE
 
 log = logging.getLogger(__name__)
 
@@ -110,7 +115,8 @@ def _to_register(value: float, value_range: tuple[float, float], name: str, unit
 
 
 class RobotiqGripper:
-    """Client for the URCap gripper socket; all commands are bounded by `config.timeout`."""
+    """Client for the URCap gripper socket; every reply is bounded by `config.timeout`, every finger motion by
+    `motion_timeout`."""
 
     def __init__(self, config: GripperConfig, guard: SafetyGuard, *, dry_run: bool = False) -> None:
         self.config = config
@@ -248,8 +254,14 @@ class RobotiqGripper:
         self._request(line, _ACK)
 
     def get(self, name: str) -> int:
-        """Read one variable with GET; raises (and disconnects) on a malformed reply."""
-        return int(self._request(f"GET {name}", _Reply(f"{name} ", r"\d+")).split()[1])
+        """Read one variable with GET; raises (and disconnects) on a malformed reply, and names an emergency stop
+        (the URCap's ``<VAR> ?``; the link stays in step, so it stays connected)."""
+        value = self._request(f"GET {name}", _Reply(f"{name} ", r"\d+|\?")).split()[1]
+        if value == "?":
+            raise GripperError(f"the gripper answered '{name} ?' to 'GET {name}': the robot is in emergency stop, "
+                               "so the URCap reads nothing from the gripper; release the e-stop, then activate the "
+                               "gripper again")
+        return int(value)
 
     # ------------------------------------------------------------------------------------------------ operations
     def state(self) -> GripperState:
@@ -309,6 +321,7 @@ class RobotiqGripper:
         self.guard.check_opening(target_width)
         # while the fingers move they may be anywhere between the old and the new opening
         self.guard.finger_opening = max(self.guard.finger_opening, target_width)
+        start = self.get("POS") if wait and not self.dry_run else int(position)
         self.set(**line, GTO=1)
         if self.dry_run:
             self._dry_position = int(position)
@@ -317,12 +330,19 @@ class RobotiqGripper:
         if not wait:
             return GripResult(False, self.width(), self.get("POS"))
         self._wait(lambda: self.get("PRE") == int(position), "position request echo", self.config.timeout)
-        self._wait(lambda: self.get("OBJ") != OBJ_MOVING, "finger motion", self.config.timeout)
+        self._wait(lambda: self.get("OBJ") != OBJ_MOVING, "finger motion", self.motion_timeout(start, position, speed))
         state = self.state()
         if state.fault:
             raise GripperError(f"gripper fault {state.fault}: {FAULTS.get(state.fault, 'unknown fault')}")
         self.guard.finger_opening = self.register_to_width(state.position)
         return GripResult(state.object_detected, self.guard.finger_opening, state.position)
+
+    def motion_timeout(self, start: int, goal: int, speed: float) -> float:
+        """Deadline (s) of a finger motion from POS `start` towards `goal` at `speed` (m/s): the travel time (the
+        calibrated ends bound the travel) plus `config.timeout` as the margin for settling and speed error (a fixed
+        deadline failed full strokes at slow speeds: issue 33, F10)."""
+        travel = abs(self.register_to_width(goal) - self.register_to_width(start))
+        return travel / speed + self.config.timeout
 
     def move_to_width(self, width: float, *, speed: float | None = None, force: float | None = None) -> GripResult:
         """Open or close to a finger opening in metres."""
