@@ -1,0 +1,166 @@
+"""The twin behind the emulated lab cell (sim/lab/twin.py), driven directly: placement as SimCell places, the RTDE
+base frame, moveJ / moveL / stop timing, protective stops, inverse kinematics, the fingers on an object, the
+real-time clock. The same models behind the wire are tested in tests/test_lab_episode.py."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from sim.cell import SimCell
+from sim.lab.twin import (
+    CLOSED_REGISTER,
+    HOME_Q_WIRE,
+    OBJ_AT_REQUEST,
+    OBJ_MOVING,
+    OBJ_STOPPED_CLOSING,
+    OPEN_REGISTER,
+    TwinScene,
+    pose_matrix,
+    pose_vector,
+    trapezoid,
+)
+from sim.robot import HOME_Q, T_FLANGE_GRIPPER
+
+#: The gripper pointing down, closing along the world x axis.
+DOWN = np.diag([1.0, -1.0, -1.0])
+
+
+def down_at(x: float, y: float, z: float) -> list[float]:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = DOWN, (x, y, z)
+    return pose_vector(T)
+
+
+def run(scene: TwinScene, limit: float = 10.0) -> float:
+    """Step until the arm rests and the fingers stopped; the simulated seconds it took."""
+    steps = 0
+    while scene.arm.is_moving() or scene.fingers.object_status() == OBJ_MOVING:
+        scene.step_once()
+        steps += 1
+        assert steps * scene.time_step < limit, "the motion did not end"
+    return steps * scene.time_step
+
+
+@pytest.fixture
+def mug():
+    scene = TwinScene("mug_classic", 3, None)
+    scene.arm.set_tcp([0.0, 0.0, 0.15, 0.0, 0.0, 0.0])
+    yield scene
+    scene.close()
+
+
+def test_placement_is_simcells_and_the_world_is_the_rtde_base_frame(mug):
+    with SimCell(objects=[mug.cell.current_object], embodiment="arm") as cell:
+        cell.reset(3, "mug_classic")
+        twin_pose = np.array(mug.truth()["T_world_obj"])
+        assert np.abs(twin_pose - cell.object_mesh()[1]).max() < 1e-6
+        # the arm at the wire's home has its gripper where SimCell's home puts it
+        world, robot = cell.world, cell.robot
+        T_sim = world.link_pose(robot.body, robot.gripper.base_link)
+    assert np.allclose(mug.arm.actual_q(), HOME_Q_WIRE, atol=1e-6) and HOME_Q_WIRE[0] == pytest.approx(np.pi)
+    T_wire = pose_matrix(mug.arm.actual_tcp_pose()) @ np.linalg.inv(pose_matrix([0, 0, 0.15, 0, 0, 0]))
+    assert np.abs(T_wire @ T_FLANGE_GRIPPER - T_sim).max() < 1e-6
+    assert not np.allclose(HOME_Q, HOME_Q_WIRE)
+
+
+def test_placement_refuses_bad_requests(mug):
+    with pytest.raises(ValueError, match="unknown object id 'teapot'"):
+        mug.place("teapot", 0)
+    with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+        mug.place("mug_classic", -1)
+
+
+def test_movel_and_movej_end_on_target_in_their_profiles_time(mug):
+    arm = mug.arm
+    start = pose_matrix(arm.actual_tcp_pose())
+    target = down_at(start[0, 3] + 0.12, start[1, 3] - 0.05, start[2, 3] - 0.10)
+    arm.move_linear(target, 0.1, 0.5)
+    took = run(mug)
+    length = float(np.linalg.norm(pose_matrix(target)[:3, 3] - start[:3, 3]))
+    assert took == pytest.approx(trapezoid(length, 0.1, 0.5).duration, abs=0.1)
+    assert np.linalg.norm(np.subtract(arm.actual_tcp_pose()[:3], target[:3])) < 1e-3
+    q = np.array(arm.actual_q()) + np.array([0.3, 0.1, -0.1, 0.0, 0.0, 0.4])
+    arm.move_joints(q, 1.0, 1.4)
+    took = run(mug)
+    assert took == pytest.approx(trapezoid(0.4, 1.0, 1.4).duration, abs=0.1)
+    assert np.abs(np.array(arm.actual_q()) - q).max() < 2e-3
+
+
+def test_stop_decelerates_along_the_line(mug):
+    arm = mug.arm
+    start = np.array(arm.actual_tcp_pose()[:3])
+    arm.move_linear(down_at(start[0] + 0.3, start[1], start[2]), 0.1, 0.5)
+    mug.advance(0.8)
+    arm.stop(1.0)
+    run(mug)
+    # 0.01 m accelerating, 0.06 m at 0.1 m/s, then 0.005 m braking at 1 m/s^2
+    assert np.linalg.norm(np.array(arm.actual_tcp_pose()[:3]) - start) == pytest.approx(0.075, abs=0.003)
+
+
+def test_pressing_into_the_table_is_a_protective_stop(mug):
+    arm = mug.arm
+    arm.move_linear(down_at(0.3, 0.2, -0.05), 0.1, 0.5)
+    run(mug)
+    assert arm.safety_status == "protective_stop" and "N on the tool above" in arm.stop_reason
+    assert arm.actual_tcp_pose()[2] > 0.0  # halted on the table, not at the target below it
+    with pytest.raises(ValueError, match="protective stop"):
+        arm.move_joints(HOME_Q_WIRE, 1.0, 1.0)
+
+
+def test_inverse_kinematics(mug):
+    arm = mug.arm
+    here = arm.actual_tcp_pose()
+    q = arm.inverse_kinematics(here)
+    assert np.abs(np.array(q) - HOME_Q_WIRE).max() < 1e-6
+    assert arm.ik_has_solution(down_at(0.5, 0.0, 0.1))
+    assert not arm.ik_has_solution(down_at(3.0, 0.0, 0.3))
+    assert not arm.pose_within_limits(down_at(0.5, 0.0, -0.01))  # below the table plane
+    with pytest.raises(ValueError, match="outside the joint limits"):
+        arm.move_joints([0, 0, 4.0, 0, 0, 0], 1.0, 1.0)
+
+
+def test_fingers_stop_on_the_object_hold_it_through_the_lift_and_lose_it():
+    scene = TwinScene("bottle_water", 0, None)
+    try:
+        arm, fingers = scene.arm, scene.fingers
+        arm.set_tcp(pose_vector(T_FLANGE_GRIPPER @ scene.gripper.T_base_tcp(scene.gripper.max_width)))
+        T = np.array(scene.truth()["T_world_obj"])
+        vertices = scene.cell.current_object.mesh.vertices @ T[:3, :3].T + T[:3, 3]
+        top = vertices[:, 2].max()
+        neck = vertices[vertices[:, 2] > top - 0.02]
+        x, y = neck[:, :2].mean(axis=0)
+        diameter = 2 * np.linalg.norm(neck[:, :2] - (x, y), axis=1).max()
+        fingers.request(0, 255, 255)
+        arm.move_linear(down_at(x, y, top + 0.1), 0.25, 1.0)
+        run(scene)
+        assert fingers.position_register() == OPEN_REGISTER and fingers.object_status() == OBJ_AT_REQUEST
+        arm.move_linear(down_at(x, y, top - 0.012), 0.1, 0.5)
+        run(scene)
+        fingers.request(255, 108, 255)
+        assert fingers.object_status() == OBJ_MOVING
+        run(scene)
+        assert fingers.object_status() == OBJ_STOPPED_CLOSING
+        assert scene.gripper.width() == pytest.approx(diameter, abs=0.004)
+        z0 = scene.truth()["T_world_obj"][2][3]
+        arm.move_linear(down_at(x, y, top + 0.19), 0.1, 0.5)
+        run(scene)
+        scene.advance(1.0)
+        assert scene.truth()["T_world_obj"][2][3] - z0 > 0.18 and arm.safety_status == "normal"
+        assert fingers.object_status() == OBJ_STOPPED_CLOSING
+        scene.lose_object()
+        scene.advance(0.5)
+        assert fingers.object_status() == OBJ_AT_REQUEST and fingers.position_register() > CLOSED_REGISTER - 6
+    finally:
+        scene.close()
+
+
+def test_the_clock_keeps_simulated_time_with_the_wall_clock(mug):
+    mug.start()
+    began = mug.sim_time
+    time.sleep(1.0)
+    stats = mug.stats()
+    assert mug.sim_time - began == pytest.approx(1.0, abs=0.15)
+    assert stats["real_time_factor"] > 0.9 and stats["headroom"] > 1.0
