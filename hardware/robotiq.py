@@ -52,6 +52,9 @@ FAULTS = {
     15: "automatic release completed",
 }
 
+#: The largest value each variable can read (the others are registers, 0-255); a reply beyond it is a protocol error.
+MAX_VALUE = {"ACT": 1, "GTO": 1, "ATR": 1, "ADR": 1, "STA": 3, "OBJ": 3, "FLT": 15}
+
 _SETTLE = 0.02  # s of silence that ends a complete reply sent without a newline
 MAX_REPLY_BYTES = 256  # the longest reply the client accepts (the URCap's are under 10 bytes)
 
@@ -254,13 +257,18 @@ class RobotiqGripper:
         self._request(line, _ACK)
 
     def get(self, name: str) -> int:
-        """Read one variable with GET; raises (and disconnects) on a malformed reply, and names an emergency stop
-        (the URCap's ``<VAR> ?``; the link stays in step, so it stays connected)."""
-        value = self._request(f"GET {name}", _Reply(f"{name} ", r"\d+|\?")).split()[1]
+        """Read one variable with GET; raises (and disconnects) on a malformed reply or a value out of the
+        variable's range, and names an emergency stop (the URCap's ``<VAR> ?``; the link stays in step, so it stays
+        connected)."""
+        reply = self._request(f"GET {name}", _Reply(f"{name} ", r"\d+|\?"))
+        value = reply.split()[1]
         if value == "?":
-            raise GripperError(f"the gripper answered '{name} ?' to 'GET {name}': the robot is in emergency stop, "
+            raise GripperError(f"the gripper answered {reply!r} to 'GET {name}': the robot is in emergency stop, "
                                "so the URCap reads nothing from the gripper; release the e-stop, then activate the "
                                "gripper again")
+        high = MAX_VALUE.get(name, 255)
+        if int(value) > high:
+            raise self._drop(f"the gripper answered {reply!r} to 'GET {name}' ({name} is 0-{high})")
         return int(value)
 
     # ------------------------------------------------------------------------------------------------ operations

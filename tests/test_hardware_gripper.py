@@ -237,3 +237,16 @@ def test_an_unexpected_reply_drops_the_connection(cell_config):
             gripper.get("XYZ")
         with pytest.raises(ConnectionLostError, match="not connected"):
             gripper.get("POS")
+
+
+@pytest.mark.parametrize("reply", ["POS 999", "PRE 256", "STA 7", "OBJ 4", "FLT 16", "ACT 2"])
+def test_a_value_out_of_its_range_is_a_protocol_error(cell_config, reply):
+    # issue 34: POS 999 used to become a clipped width
+    name = reply.split()[0]
+    with FakeRobotiqServer() as server:
+        server.misbehave[f"GET {name}"] = lambda client, data: client.sendall(reply.encode())
+        gripper = make_gripper(cell_config, server)
+        with pytest.raises(GripperError, match=rf"answered '{reply}' to 'GET {name}' \({name} is 0-\d+\); disconnected"):
+            gripper.get(name)
+        with pytest.raises(ConnectionLostError, match="not connected"):
+            gripper.get("POS")

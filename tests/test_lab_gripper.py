@@ -91,7 +91,7 @@ def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers
     assert held.object_detected and gripper.object_detected()
     assert held.width == pytest.approx(0.050, abs=0.0004)
     assert fingers.force == pytest.approx(GRIP_FORCE_RANGE[1])
-    server.handlers()["lose_object"]()  # the object slips out: the fingers carry on to the request
+    server.handlers()["lose_object"]({"cmd": "lose_object"})  # the object slips out: the fingers carry on to the request
     assert not gripper.object_detected()
     deadline = time.monotonic() + 2.0
     while gripper.state().object_status != 3 and time.monotonic() < deadline:
@@ -129,13 +129,13 @@ def test_jammed_fingers_end_at_the_motion_deadline(cell_config):
 def test_an_emergency_stop_is_named_and_recovered_from(cell_config, server):
     gripper = active(cell_config, server)
     estop = server.handlers()["gripper_estop"]
-    estop(on=True)
+    estop({"cmd": "gripper_estop", "on": True})
     # the URCap answers 'STA ?': the client used to say "expected 'STA ' and a number" and drop the link
     with pytest.raises(GripperError, match="emergency stop"):
         gripper.is_active()
     with pytest.raises(GripperError, match="emergency stop"):
         gripper.close(speed=FAST)
-    estop(on=False)
+    estop({"cmd": "gripper_estop", "on": False})
     assert not gripper.is_active()  # released, the gripper comes back reset, on the same connection
     gripper.activate()
     assert not gripper.close(speed=FAST).object_detected
@@ -152,7 +152,7 @@ def test_an_emergency_stop_mid_motion_is_named(cell_config, server):
 def test_fault_13_mid_grasp_is_named_and_cleared(cell_config, server):
     gripper = active(cell_config, server)
     gripper.open(speed=FAST)
-    threading.Timer(0.3, server.handlers()["gripper_fault"], kwargs={"code": 13}).start()
+    threading.Timer(0.3, server.handlers()["gripper_fault"], ({"cmd": "gripper_fault", "code": 13},)).start()
     start = time.monotonic()
     with pytest.raises(GripperError, match=r"gripper fault 13\b.*activation fault"):
         gripper.close(speed=SLOW)

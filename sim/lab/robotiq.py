@@ -32,8 +32,9 @@ import logging
 import socket
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
@@ -255,19 +256,26 @@ class RobotiqServer:
         with self.lock:
             self._garbage = int(count)
 
-    def handlers(self) -> dict[str, Callable[..., dict]]:
-        """Control-channel commands: gripper_fault {code}, lose_object, gripper_estop {on}, each -> a reply dict."""
-        def fault(code: int = 13) -> dict:
+    def handlers(self) -> dict[str, Callable[[dict], dict]]:
+        """Control-channel commands (sim/lab/control.py: each gets the request dict, returns the reply's fields):
+        ``gripper_fault {code}``, ``lose_object``, ``gripper_estop {on}`` (on defaults to true)."""
+        def fault(request: dict) -> dict:
+            code = request.get("code")
+            if not isinstance(code, int) or isinstance(code, bool) or not 0 <= code <= 15:
+                raise ValueError(f"gripper_fault needs a code 0-15 (the URCap's FLT), got {code!r}")
             self.inject_fault(code)
-            return {"fault": int(code)}
+            return {"fault": code}
 
-        def lose() -> dict:
+        def lose(request: dict) -> dict:
             self.lose_object()
             return {}
 
-        def estop(on: bool = True) -> dict:
+        def estop(request: dict) -> dict:
+            on = request.get("on", True)
+            if not isinstance(on, bool):
+                raise ValueError(f"gripper_estop's on must be true or false, got {on!r}")
             self.set_estop(on)
-            return {"estop": bool(on)}
+            return {"estop": on}
 
         return {"gripper_fault": fault, "lose_object": lose, "gripper_estop": estop}
 
