@@ -246,7 +246,8 @@ def test_a_value_out_of_its_range_is_a_protocol_error(cell_config, reply):
     with FakeRobotiqServer() as server:
         server.misbehave[f"GET {name}"] = lambda client, data: client.sendall(reply.encode())
         gripper = make_gripper(cell_config, server)
-        with pytest.raises(GripperError, match=rf"answered '{reply}' to 'GET {name}' \({name} is 0-\d+\); disconnected"):
+        problem = rf"answered '{reply}' to 'GET {name}' \({name} is 0-\d+\); disconnected"
+        with pytest.raises(GripperError, match=problem):
             gripper.get(name)
         with pytest.raises(ConnectionLostError, match="not connected"):
             gripper.get("POS")

@@ -12,10 +12,11 @@ import pytest
 
 from hardware.cell import make_guard
 from hardware.config import load_config
-from hardware.errors import GripperError
+from hardware.errors import ConnectionLostError, GripperError
 from hardware.robotiq import RobotiqGripper
 from seggrasp.cell import FINGER_SPEED_RANGE, GRIP_FORCE_RANGE
-from sim.lab.robotiq import CLOSED_REGISTER, OPEN_REGISTER, KinematicFingers, RobotiqServer
+from sim.lab import control
+from sim.lab.robotiq import CLOSED_REGISTER, OPEN_REGISTER, KinematicFingers, RobotiqServer, start_gripper_server
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "hardware" / "cell.example.yaml"
 ACTIVATION = 0.3  # s, shorter than the emulator's default to keep the tests quick
@@ -34,8 +35,16 @@ def fingers():
 
 @pytest.fixture
 def server(fingers):
-    with RobotiqServer(fingers, port=0, activation_time=ACTIVATION) as server:
+    with start_gripper_server(fingers, port=0, activation_time=ACTIVATION) as server:
         yield server
+
+
+@pytest.fixture(scope="module")
+def channel():
+    """A real control channel (sim/lab/control.py) on a free port: send(cmd, **arguments) -> its reply."""
+    server = control.ControlServer(port=0)
+    yield lambda cmd, **arguments: control.request(cmd, port=server.port, timeout=2.0, **arguments)
+    server.close()
 
 
 def connect(cell_config, port: int, timeout: float = 1.0) -> RobotiqGripper:
@@ -83,7 +92,7 @@ def test_close_and_open_on_nothing(cell_config, server, fingers):
     assert middle.width == pytest.approx(0.04, abs=0.0004) and fingers.width() == pytest.approx(0.04, abs=0.0004)
 
 
-def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers):
+def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers, channel):
     gripper = active(cell_config, server)
     gripper.open(speed=FAST)
     fingers.set_object(0.050)
@@ -91,7 +100,7 @@ def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers
     assert held.object_detected and gripper.object_detected()
     assert held.width == pytest.approx(0.050, abs=0.0004)
     assert fingers.force == pytest.approx(GRIP_FORCE_RANGE[1])
-    server.handlers()["lose_object"]({"cmd": "lose_object"})  # the object slips out: the fingers carry on to the request
+    channel("lose_object")  # the object slips out: the fingers carry on to the request
     assert not gripper.object_detected()
     deadline = time.monotonic() + 2.0
     while gripper.state().object_status != 3 and time.monotonic() < deadline:
@@ -126,16 +135,15 @@ def test_jammed_fingers_end_at_the_motion_deadline(cell_config):
         assert 0.5 < time.monotonic() - start < 1.5
 
 
-def test_an_emergency_stop_is_named_and_recovered_from(cell_config, server):
+def test_an_emergency_stop_is_named_and_recovered_from(cell_config, server, channel):
     gripper = active(cell_config, server)
-    estop = server.handlers()["gripper_estop"]
-    estop({"cmd": "gripper_estop", "on": True})
+    channel("gripper_estop", on=True)
     # the URCap answers 'STA ?': the client used to say "expected 'STA ' and a number" and drop the link
     with pytest.raises(GripperError, match="emergency stop"):
         gripper.is_active()
     with pytest.raises(GripperError, match="emergency stop"):
         gripper.close(speed=FAST)
-    estop({"cmd": "gripper_estop", "on": False})
+    channel("gripper_estop", on=False)
     assert not gripper.is_active()  # released, the gripper comes back reset, on the same connection
     gripper.activate()
     assert not gripper.close(speed=FAST).object_detected
@@ -149,10 +157,10 @@ def test_an_emergency_stop_mid_motion_is_named(cell_config, server):
         gripper.close(speed=SLOW)
 
 
-def test_fault_13_mid_grasp_is_named_and_cleared(cell_config, server):
+def test_fault_13_mid_grasp_is_named_and_cleared(cell_config, server, channel):
     gripper = active(cell_config, server)
     gripper.open(speed=FAST)
-    threading.Timer(0.3, server.handlers()["gripper_fault"], ({"cmd": "gripper_fault", "code": 13},)).start()
+    threading.Timer(0.3, channel, ("gripper_fault",), {"code": 13}).start()
     start = time.monotonic()
     with pytest.raises(GripperError, match=r"gripper fault 13\b.*activation fault"):
         gripper.close(speed=SLOW)
@@ -164,9 +172,10 @@ def test_fault_13_mid_grasp_is_named_and_cleared(cell_config, server):
 
 def test_a_garbage_reply_is_named_and_the_link_resynchronised(cell_config, server):
     gripper = active(cell_config, server)
-    server.send_garbage()
+    server.garbage = True  # the control channel's `garbage {port: 63352}`
     with pytest.raises(GripperError, match=r"answered .* to 'GET POS' \(expected 'POS ' and a number\); disconnected"):
         gripper.width()
+    server.garbage = False
     gripper.connect()
     assert gripper.is_active() and gripper.get("POS") == CLOSED_REGISTER
 
@@ -204,3 +213,20 @@ def test_an_endless_request_line_closes_the_connection(server):
     with socket.create_connection(("127.0.0.1", server.port), timeout=1.0) as raw:
         raw.sendall(b"G" * 4096)
         assert raw.recv(64) == b""
+
+
+def test_a_bad_fault_request_is_refused_by_the_control_channel(server, channel):
+    with pytest.raises(control.LabError, match="gripper_fault needs a code 0-15"):
+        channel("gripper_fault", code="13")
+    with pytest.raises(control.LabError, match="gripper_estop's on must be true or false"):
+        channel("gripper_estop", on="yes")
+
+
+def test_a_link_dropped_mid_motion_is_named(cell_config, server):
+    gripper = active(cell_config, server)
+    gripper.open(speed=FAST)
+    threading.Timer(0.3, server.drop_clients).start()  # the control channel's `drop_link {port: 63352}`
+    with pytest.raises(ConnectionLostError, match="the gripper closed the connection"):
+        gripper.close(speed=SLOW)
+    gripper.connect()
+    assert gripper.is_active()

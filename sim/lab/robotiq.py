@@ -40,6 +40,7 @@ import numpy as np
 
 from seggrasp.cell import FINGER_SPEED_RANGE, GRIP_FORCE_RANGE
 from sim.gripper import MAX_WIDTH
+from sim.lab import TcpServer, control
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,7 @@ STEP_PERIOD = 0.005
 MAX_LINE = 1024
 #: POS read fully open / closed on nothing by the emulated unit (a real 2F-85 reads about 3 / 228-230).
 OPEN_REGISTER, CLOSED_REGISTER = 3, 228
-#: What `send_garbage` makes the gripper answer: bytes no URCap sends (a stray binary frame).
+#: What the gripper answers while `garbage` is on: bytes no URCap sends (a stray binary frame).
 GARBAGE = b"\x15\x03\xff\x00RQ\x9c"
 
 STA_RESET, STA_ACTIVATING, STA_ACTIVE = 0, 1, 3
@@ -174,10 +175,11 @@ class _Registers:
     PRE: int = 0
 
 
-class RobotiqServer:
-    """The URCap socket on `host:port` (0: any free port, read `.port`) in front of `fingers`. Threaded: `start()`
-    serves until `stop()`; also a context manager. Fault injection: `inject_fault`, `lose_object`, `set_estop`,
-    `send_garbage`; `handlers()` are the same for the control channel."""
+class RobotiqServer(TcpServer):
+    """The URCap socket on `host:port` (0: any free port, read `.port`) in front of `fingers`, serving from
+    construction until `close()` (also a context manager). Faults: `inject_fault`, `lose_object`, `set_estop`,
+    `garbage` (True: every reply is `GARBAGE`) and the link faults of `TcpServer`; `handlers()` serve the same to
+    the control channel."""
 
     def __init__(self, fingers: FingerModel, host: str = "127.0.0.1", port: int = URCAP_PORT, *,
                  activation_time: float = ACTIVATION_TIME, echo_delay: float = ECHO_DELAY,
@@ -186,48 +188,32 @@ class RobotiqServer:
         self.activation_time, self.echo_delay, self.step_period = activation_time, echo_delay, step_period
         self.lock = lock or threading.RLock()
         self.requests = 0  # request lines answered
+        self.garbage = False
         self._regs = _Registers()
         self._estop = False
         self._releasing = False
-        self._garbage = 0
         self._timers: list[tuple[float, Callable[[], None]]] = []
         self._last_step = time.monotonic()
         self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self._clients: set[socket.socket] = set()
-        self._listener = socket.create_server((host, port), backlog=8)
-        self._listener.settimeout(0.1)
-        self.port = self._listener.getsockname()[1]
-
-    # ------------------------------------------------------------------------------------------------ lifetime
-    def start(self) -> RobotiqServer:
-        self._spawn(self._accept, "robotiq-accept")
-        if self.step_period is not None:
-            self._spawn(self._clock, "robotiq-clock")
+        self._clock_thread: threading.Thread | None = None
+        super().__init__(host, port)
+        if step_period is not None:
+            self._clock_thread = threading.Thread(target=self._clock, name="robotiq-clock", daemon=True)
+            self._clock_thread.start()
         log.info("Robotiq URCap socket on port %d", self.port)
-        return self
 
-    def stop(self) -> None:
-        """Stop serving: close the listener and every connection, join the threads. Idempotent."""
+    def close(self) -> None:
+        """Stop listening, drop every client and stop the clock. Idempotent."""
         self._stop.set()
-        self._listener.close()
-        with self.lock:
-            for client in self._clients:
-                client.close()
-        for thread in self._threads:
-            if thread is not threading.current_thread():
-                thread.join(timeout=2.0)
+        super().close()
+        if self._clock_thread is not None:
+            self._clock_thread.join(timeout=2.0)
 
     def __enter__(self) -> RobotiqServer:
-        return self.start()
+        return self
 
     def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _spawn(self, target: Callable[..., None], name: str, *args: object) -> None:
-        thread = threading.Thread(target=target, args=args, name=name, daemon=True)
-        self._threads.append(thread)
-        thread.start()
+        self.close()
 
     # --------------------------------------------------------------------------------------------- faults
     def inject_fault(self, code: int) -> None:
@@ -250,11 +236,6 @@ class RobotiqServer:
             if not on and self._estop:
                 self._reset()
             self._estop = bool(on)
-
-    def send_garbage(self, count: int = 1) -> None:
-        """Answer the next `count` requests with `GARBAGE` (and do nothing else with them)."""
-        with self.lock:
-            self._garbage = int(count)
 
     def handlers(self) -> dict[str, Callable[[dict], dict]]:
         """Control-channel commands (sim/lab/control.py: each gets the request dict, returns the reply's fields):
@@ -377,8 +358,7 @@ class RobotiqServer:
         with self.lock:
             self._advance()
             self.requests += 1
-            if self._garbage:
-                self._garbage -= 1
+            if self.garbage:
                 return GARBAGE
             words = line.split()
             if len(words) == 2 and words[0] == "GET" and ALIASES.get(words[1], words[1]) in READABLE:
@@ -391,44 +371,17 @@ class RobotiqServer:
                 self._set(pairs)
             return b"ack"
 
-    # ------------------------------------------------------------------------------------------------ network
-    def _accept(self) -> None:
-        while not self._stop.is_set():
-            try:
-                client, _ = self._listener.accept()
-            except socket.timeout:
-                continue
-            except OSError:
-                return
-            with self.lock:
-                self._clients.add(client)
-            self._spawn(self._serve, "robotiq-client", client)
-
-    def _serve(self, client: socket.socket) -> None:
-        client.settimeout(0.1)
+    def serve_client(self, sock: socket.socket) -> None:
         buffer = b""
-        try:
-            while not self._stop.is_set():
-                try:
-                    chunk = client.recv(4096)
-                except socket.timeout:
-                    continue
-                if not chunk:
-                    return
-                buffer += chunk
-                while b"\n" in buffer:
-                    line, buffer = buffer.split(b"\n", 1)
-                    if line.strip():
-                        client.sendall(self.reply(line.decode("ascii", errors="replace").strip()))
-                if len(buffer) > MAX_LINE:
-                    log.warning("a request line over %d bytes: closing the connection", MAX_LINE)
-                    return
-        except OSError:
-            return
-        finally:
-            with self.lock:
-                self._clients.discard(client)
-            client.close()
+        while chunk := sock.recv(4096):
+            buffer += chunk
+            while b"\n" in buffer:
+                line, buffer = buffer.split(b"\n", 1)
+                if line.strip():
+                    sock.sendall(self.reply(line.decode("ascii", errors="replace").strip()))
+            if len(buffer) > MAX_LINE:
+                log.warning("a request line over %d bytes: closing the connection", MAX_LINE)
+                return
 
 
 def _parse_set(words: list[str]) -> dict[str, int] | None:
@@ -446,7 +399,10 @@ def _parse_set(words: list[str]) -> dict[str, int] | None:
 
 def start_gripper_server(fingers: FingerModel, host: str = "127.0.0.1", port: int = URCAP_PORT,
                          **options) -> RobotiqServer:
-    """Serve the URCap socket for `fingers` on `host:port` in background threads; `.stop()` ends it. `options`:
-    activation_time, echo_delay, step_period (None when another clock steps the fingers) and lock (the one that
-    clock holds while stepping)."""
-    return RobotiqServer(fingers, host, port, **options).start()
+    """Serve the URCap socket for `fingers` on `host:port` (background threads; `.close()` ends it) and register
+    its faults on the control channel. `options`: activation_time, echo_delay, step_period (None when another
+    clock steps the fingers) and lock (the one that clock holds while stepping)."""
+    server = RobotiqServer(fingers, host, port, **options)
+    for name, handler in server.handlers().items():
+        control.register(name, handler)
+    return server
