@@ -18,7 +18,7 @@ import numpy as np
 import trimesh
 
 from seggrasp.fusion import assign_parts_to_prompts
-from seggrasp.grasp.antipodal import pad_contacts
+from seggrasp.grasp.pads import pad_contacts
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 from seggrasp.labels import UNKNOWN
 

@@ -9,7 +9,7 @@ from seggrasp.baselines import shapegrasp_grasps
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, Slot, action_slot
 from seggrasp.grasp import GraspSet
-from seggrasp.grasp.antipodal import pad_contacts
+from seggrasp.grasp.pads import pad_contacts
 from seggrasp.truth import GroundTruth
 
 

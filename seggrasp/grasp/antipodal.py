@@ -6,8 +6,8 @@
 3. Keep pairs whose axis lies inside both friction cones (half-angle atan(mu)) and whose distance fits the stroke.
 4. Around each pair's axis (the gripper's x) sample approach directions (the gripper's z); with a table plane, a
    pair tilted a little from the table also gets a straight-down pose closing level with the table across its
-   middle (`_level_poses`: a round handle lying flat is held across its widest section, with a line contact).
-   With a table plane, envelope poses (`_envelope_poses`) come straight down closing level with the table around
+   middle (`level_poses`: a round handle lying flat is held across its widest section, with a line contact).
+   With a table plane, envelope poses (`envelope_poses`) come straight down closing level with the table around
    a whole cluster of surface, found along lines through surface points: what a finger cannot get between (a
    scissors ring whose hole is narrower than a finger, a pair of rings) is held from outside.
 5. Depth search, deepest first: each pose is tried with the contacts `contact_depths` along the pad (3 mm steps
@@ -40,6 +40,8 @@ import numpy as np
 import trimesh
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE
+from seggrasp.grasp.pads import PAD_HALF_LENGTH, PAD_HALF_WIDTH, box_corners, pad_bands, pressed_centres, sweep
+from seggrasp.grasp.poses import envelope_poses, level_poses, poses_around_axes
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 
 LOG = logging.getLogger(__name__)
@@ -50,8 +52,6 @@ RAY_EPSILON = 1e-5
 COLLISION_CHUNK = 256
 #: Every this many collision points form the sparse first pass of the collision test.
 COARSE_STRIDE = 8
-#: Envelope line centres whose clusters are found in one vectorised block (memory: this x cloud x 3 floats).
-ENVELOPE_CHUNK = 64
 
 
 @dataclass(frozen=True)
@@ -84,13 +84,13 @@ class AntipodalConfig:
     # `pinch_band_tolerance` of each pad's first touch
     pinch_min_band: float = 0.003
     pinch_band_tolerance: float = 0.0015
-    pad_half_width: float = 0.011  # the pad's footprint: 22 x 37.5 mm
-    pad_half_length: float = 0.01875
+    pad_half_width: float = PAD_HALF_WIDTH
+    pad_half_length: float = PAD_HALF_LENGTH
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
-    # a level pose (`_level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
+    # a level pose (`level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
     # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
     level_facing_deg: float = 18.0
-    # envelope poses (`_envelope_poses`): straight-down poses closing level with the table around everything the
+    # envelope poses (`envelope_poses`): straight-down poses closing level with the table around everything the
     # fingers would straddle on a line through one of `envelope_centres` surface points, in `envelope_directions`
     # directions (0 centres: none); how a 2F-85 picks a ring, a frame or a flat cluster whose walls are too thin or
     # whose holes are too small for a finger (scissors handles lying flat), held from outside
@@ -174,11 +174,11 @@ class AntipodalSampler:
             pairs = (empty, empty, empty, np.zeros(0), np.zeros(0))
         p, q, axis, width, antipodality = pairs
 
-        poses = _poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
+        poses = poses_around_axes(p, q, axis, cfg.n_approaches, rng, None if plane is None else -plane[:3])
         pair_of = np.repeat(np.arange(len(p)), cfg.n_approaches)
         from_sweep = np.zeros(len(poses), dtype=bool)
         if plane is not None:
-            level, level_pairs = _level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
+            level, level_pairs = level_poses(p, q, axis, -plane[:3], float(np.arctan(cfg.friction_coefficient)))
             poses, pair_of = np.concatenate([poses, level]), np.concatenate([pair_of, level_pairs])
             from_sweep = np.r_[from_sweep, np.ones(len(level), dtype=bool)]
         widths = width[pair_of]
@@ -187,7 +187,7 @@ class AntipodalSampler:
         cloud, cloud_normals = _collision_cloud(mesh, normals_sign, cfg, int(rng.integers(2**31)))
         is_envelope = np.zeros(len(poses), dtype=bool)
         if plane is not None and cfg.envelope_centres:
-            envelope, envelope_widths = _envelope_poses(cloud, plane, self.gripper, cfg)
+            envelope, envelope_widths = envelope_poses(cloud, plane, self.gripper, cfg)
             poses = np.concatenate([poses, envelope])
             widths = np.r_[widths, envelope_widths]
             # an envelope's contacts and antipodality come from what its pads press on, found below
@@ -215,7 +215,8 @@ class AntipodalSampler:
         envelope_index = np.flatnonzero(is_envelope)
         for start in range(0, len(envelope_index), COLLISION_CHUNK):
             chunk = envelope_index[start : start + COLLISION_CHUNK]
-            contacts[chunk] = _pressed_centres(poses[chunk], openings[chunk], cloud, cfg)
+            contacts[chunk] = pressed_centres(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
+                                            cfg.pinch_band_tolerance)
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
             1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)
@@ -226,7 +227,7 @@ class AntipodalSampler:
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
-                _pad_bands(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
+                pad_bands(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
                            cfg.pinch_band_tolerance)
                 for chunk in np.array_split(pinch, -(-len(pinch) // COLLISION_CHUNK))
             ])
@@ -312,7 +313,7 @@ class AntipodalSampler:
         cloud_normals: np.ndarray, from_sweep: np.ndarray,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
-        contact pair, or for the poses `from_sweep` (not aimed at a pair's contacts) always, the pads stop on
+        contact pair, or for the poses `fromsweep` (not aimed at a pair's contacts) always, the pads stop on
         the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
         they give and, per pose, how well the surface at the worse of the two outermost points faces its pad (the
         cosine of the angle between its outward normal and the pad's closing direction); poses and contacts are
@@ -321,7 +322,7 @@ class AntipodalSampler:
         alignment = np.full(len(poses), -1.0)
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
-            span, x_low, x_high, low, high = _sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
+            span, x_low, x_high, low, high = sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
                                                     -cfg.pad_half_length, cfg.pad_half_length)
             x_axis = poses[sl, :3, 0]
             alignment[sl] = np.where(np.isnan(span), -1.0, np.minimum(
@@ -369,7 +370,7 @@ class AntipodalSampler:
 
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
         """True where every corner of every gripper box is at least `clearance` above the plane."""
-        corners = _box_corners(self.gripper.boxes(0.0))  # (B * 8, 3) at zero opening
+        corners = box_corners(self.gripper.boxes(0.0))  # (B * 8, 3) at zero opening
         # the finger boxes move outwards by half the opening along x: -x finger first, then +x (GripperGeometry.boxes)
         n_finger = 8 * len(self.gripper.finger_boxes)
         shift = np.zeros(len(corners))
@@ -379,94 +380,6 @@ class AntipodalSampler:
         heights += np.outer(shift, openings) * up_in_gripper[:, 0]
         heights += poses[:, :3, 3] @ plane[:3] + plane[3]
         return heights.min(axis=0) >= clearance
-
-
-def _box_corners(boxes: np.ndarray) -> np.ndarray:
-    """The 8 corners of each box (B, 2, 3) [min, max] -> (B * 8, 3)."""
-    pick = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-    return np.stack([boxes[:, pick[:, 0], 0], boxes[:, pick[:, 1], 1], boxes[:, pick[:, 2], 2]], axis=-1).reshape(-1, 3)
-
-
-def _swept_points(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cloud in each gripper frame, x and z (G, M), and which points the closing pads sweep (|y| <= half_width,
-    z_low <= z <= z_high, |x| within half the opening)."""
-    rotations = poses[:, :3, :3]
-    local = np.matmul(cloud[None], rotations) - np.matmul(poses[:, None, :3, 3], rotations)  # (G, M, 3)
-    inside = (
-        (np.abs(local[..., 1]) <= half_width) & (local[..., 2] >= z_low) & (local[..., 2] <= z_high)
-        & (np.abs(local[..., 0]) <= 0.5 * openings[:, None])
-    )
-    return local[..., 0], local[..., 2], inside
-
-
-def _sweep(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, z_low: float, z_high: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The cloud points the closing pads sweep per pose (`_swept_points`): (span along x, NaN if none; lowest and
-    highest x; their cloud indices)."""
-    x, _, inside = _swept_points(poses, openings, cloud, half_width, z_low, z_high)
-    low = np.where(inside, x, np.inf).argmin(axis=1)
-    high = np.where(inside, x, -np.inf).argmax(axis=1)
-    rows = np.arange(len(x))
-    x_low, x_high = x[rows, low], x[rows, high]
-    span = np.where(inside.any(axis=1), x_high - x_low, np.nan)
-    return span, x_low, x_high, low, high
-
-
-def pad_touches(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Which points of `cloud` each pad closes on, per pose: the points its sweep (`_swept_points`, a pad of
-    2 half_width x 2 half_length closing from `openings`) holds within `tolerance` of its first touch. Returns the
-    -x pad's and the +x pad's masks (G, M) and the points' z in each gripper frame (G, M)."""
-    x, z, inside = _swept_points(poses, openings, cloud, half_width, -half_length, half_length)
-    masks = []
-    for sign in (-1.0, 1.0):  # the -x pad touches the lowest x, the +x pad the highest
-        first = np.where(inside, sign * x, -np.inf).max(axis=1, keepdims=True)
-        masks.append(inside & (sign * x >= first - tolerance))
-    return masks[0], masks[1], z
-
-
-def _pad_bands(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
-) -> np.ndarray:
-    """Per pose, how far along the pads (m) the surface they close on reaches: for each pad the extent along z of
-    the swept points within `tolerance` of its first touch, the smaller of the two (0 where nothing is swept)."""
-    low_pad, high_pad, z = pad_touches(poses, openings, cloud, half_width, half_length, tolerance)
-    bands = []
-    for touching in (low_pad, high_pad):
-        extent = np.where(touching, z, -np.inf).max(axis=1) - np.where(touching, z, np.inf).min(axis=1)
-        bands.append(np.where(touching.any(axis=1), extent, 0.0))
-    return np.minimum(*bands)
-
-
-def _pressed_centres(poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, cfg: AntipodalConfig) -> np.ndarray:
-    """Per pose, the centre of the surface points each pad presses on (`pad_touches` within
-    `pinch_band_tolerance` of its first touch): (G, 2, 3), -x pad first; NaN where a pad touches nothing."""
-    low_pad, high_pad, _ = pad_touches(poses, openings, cloud, cfg.pad_half_width, cfg.pad_half_length,
-                                       cfg.pinch_band_tolerance)
-    centres = []
-    for touching in (low_pad, high_pad):
-        with np.errstate(invalid="ignore"):
-            centres.append((touching @ cloud) / touching.sum(axis=1, keepdims=True))
-    return np.stack(centres, axis=1)
-
-
-def pad_contacts(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
-    half_width: float = AntipodalConfig.pad_half_width, half_length: float = AntipodalConfig.pad_half_length,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Where the two pads (2 half_width x 2 half_length, centred on the gripper's x axis), closing from `openings`
-    at `poses`, first touch the surface points `cloud` (the sampler's pad sweep, `_sweep`): contacts (G, 2, 3),
-    -x pad first, and widths (G,); both NaN for a pose whose pads sweep no point (the grasp touches nothing)."""
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
-    openings = np.broadcast_to(np.asarray(openings, dtype=np.float64), (len(poses),))
-    span, _, _, low, high = _sweep(poses, openings, cloud, half_width, -half_length, half_length)
-    contacts = np.stack([cloud[low], cloud[high]], axis=1)
-    contacts[np.isnan(span)] = np.nan
-    return contacts, span
 
 
 def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
@@ -490,113 +403,6 @@ def _opposite_contacts(
     order = np.argsort(ray_index, kind="stable")  # the intersector's output order is not guaranteed
     ray_index, locations, tri_index = ray_index[order], locations[order], tri_index[order]
     return points[ray_index], locations, normals[ray_index], face_normals[tri_index]
-
-
-def _poses_around_axes(
-    p: np.ndarray, q: np.ndarray, axis: np.ndarray, k: int, rng: np.random.Generator, down: np.ndarray | None
-) -> np.ndarray:
-    """k poses per pair: x = grasp axis, z = approach rotated about x at evenly spaced angles.
-
-    With a `down` direction (into the table) the first approach of every pair is the one closest to straight
-    down, so grasps that must come from above (flat objects) are never missed; otherwise the angles start at a
-    random offset.
-    """
-    helper = np.eye(3)[np.argmin(np.abs(axis), axis=1)]
-    u = np.cross(axis, helper)
-    u /= np.linalg.norm(u, axis=1, keepdims=True)
-    v = np.cross(axis, u)
-    if down is None:
-        offsets = 2.0 * np.pi * rng.random(len(p))
-    else:
-        offsets = np.arctan2(v @ down, u @ down)  # angle of `down` projected onto the plane normal to the axis
-    angles = offsets[:, None] + 2.0 * np.pi * np.arange(k)[None, :] / k  # (P, k)
-    cos, sin = np.cos(angles)[..., None], np.sin(angles)[..., None]
-    z = cos * u[:, None, :] + sin * v[:, None, :]
-    x = np.broadcast_to(axis[:, None, :], z.shape)
-    y = np.cross(z, x)
-    poses = np.zeros((len(p), k, 4, 4))
-    poses[..., :3, 0], poses[..., :3, 1], poses[..., :3, 2] = x, y, z
-    poses[..., :3, 3] = (0.5 * (p + q))[:, None, :]
-    poses[..., 3, 3] = 1.0
-    return poses.reshape(-1, 4, 4)
-
-
-def _level_poses(
-    p: np.ndarray, q: np.ndarray, axis: np.ndarray, down: np.ndarray, max_tilt: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Straight-down poses closing level with the table across the middle of each pair tilted by 1e-3 to `max_tilt`
-    rad from it, and the indices of those pairs. On a round part lying flat (a handle) the pairs through its axis
-    tilt every way, and the pads coming straight down close on its widest section, the one line across the pads
-    that holds against twist; the footprint (`_apply_footprint`) then finds those contacts."""
-    sine = axis @ down
-    pairs = np.flatnonzero((np.abs(sine) > 1e-3) & (np.abs(sine) <= np.sin(max_tilt)))
-    x = axis[pairs] - sine[pairs, None] * down[None]
-    x /= np.linalg.norm(x, axis=1, keepdims=True)
-    z = np.broadcast_to(down, x.shape)
-    poses = np.zeros((len(pairs), 4, 4))
-    poses[:, :3, 0], poses[:, :3, 1], poses[:, :3, 2] = x, np.cross(z, x), z
-    poses[:, :3, 3] = 0.5 * (p[pairs] + q[pairs])
-    poses[:, 3, 3] = 1.0
-    return poses, pairs
-
-
-def _envelope_poses(
-    cloud: np.ndarray, plane: np.ndarray, gripper: GripperGeometry, cfg: AntipodalConfig
-) -> tuple[np.ndarray, np.ndarray]:
-    """Straight-down poses closing level with the table around the whole cluster of surface that lies under the
-    fingers on a line through each of `envelope_centres` points of `cloud`, in `envelope_directions` directions,
-    and the clusters' widths. Along the line, the points within a finger's half width of it (any height) split into
-    clusters where a gap leaves room for a finger and its approach margin; the cluster holding the centre point, if it
-    fits the stroke, gets a pose at its middle, halfway up it or as low as the deepest pinch reaches. A hole narrower
-    than a finger does not split a cluster: the pads then close on its outer walls."""
-    up = plane[:3]
-    reach = gripper.max_opening - cfg.width_margin
-    half_y = max(box[2] for box in gripper.finger_boxes)
-    split_gap = max(box[1] for box in gripper.finger_boxes) + gripper.pre_grasp_margin
-    # no lower than the deepest pinch reaches with its fingertips clear (without pinches, no lower than halfway up)
-    lowest = (cfg.pinch_table_clearance + gripper.tip_beyond_origin - max(cfg.pinch_contact_depths) + 1e-4
-              if cfg.pinch_contact_depths else -np.inf)
-    helper = np.eye(3)[np.argmin(np.abs(up))]
-    u = np.cross(up, helper)
-    u /= np.linalg.norm(u)
-    angles = np.pi * np.arange(cfg.envelope_directions) / cfg.envelope_directions
-    directions = np.cos(angles)[:, None] * u + np.sin(angles)[:, None] * np.cross(up, u)
-    centres = cloud[np.unique(np.linspace(0, len(cloud) - 1, min(cfg.envelope_centres, len(cloud))).astype(int))]
-    heights = cloud @ up + plane[3]
-    poses, widths = [], []
-    for direction in directions:
-        across = np.cross(up, direction)
-        for chunk in np.array_split(centres, -(-len(centres) // ENVELOPE_CHUNK)):
-            relative = cloud[None] - chunk[:, None]  # (C, M, 3)
-            x, y = relative @ direction, relative @ across
-            column = (np.abs(y) <= half_y) & (np.abs(x) <= reach + split_gap)  # a cluster running out is too wide
-            xs = np.sort(np.where(column, x, np.inf), axis=1)
-            centre_index = (xs < 0.0).sum(axis=1, keepdims=True)  # the centre itself has x = 0
-            with np.errstate(invalid="ignore"):
-                split = ~(np.diff(xs, axis=1) < split_gap)  # a wide gap, or the end of the column
-            index = np.arange(xs.shape[1] - 1)[None]
-            last = np.where(split & (index >= centre_index), index, xs.shape[1] - 1).min(axis=1)
-            first = np.where(split & (index < centre_index), index, -1).max(axis=1) + 1
-            rows = np.arange(len(chunk))
-            low, high = xs[rows, first], xs[rows, last]
-            member = column & (x >= low[:, None]) & (x <= high[:, None])
-            bottom = np.where(member, heights[None], np.inf).min(axis=1)
-            top = np.where(member, heights[None], -np.inf).max(axis=1)
-            keep = np.isfinite(high) & (high - low >= cfg.min_width) & (high - low <= reach)
-            origin = chunk + 0.5 * (low + high)[:, None] * direction
-            height = np.maximum(0.5 * (bottom + top), lowest)
-            origin += (height - (origin @ up + plane[3]))[:, None] * up
-            pose = np.tile(np.eye(4), (int(keep.sum()), 1, 1))
-            pose[:, :3, 0], pose[:, :3, 1], pose[:, :3, 2] = direction, np.cross(-up, direction), -up
-            pose[:, :3, 3] = origin[keep]
-            poses.append(pose)
-            widths.append((high - low)[keep])
-    poses, widths = np.concatenate(poses), np.concatenate(widths)
-    # many centres on one cluster give the same pose: keep one per millimetre of origin and width, per direction
-    key = np.c_[np.round(poses[:, :3, 3] / 1e-3), np.round(widths / 1e-3), np.round(poses[:, :3, 0] * 1e3)]
-    _, unique = np.unique(key, axis=0, return_index=True)
-    unique.sort()
-    return poses[unique], widths[unique]
 
 
 def _collision_cloud(

@@ -2,7 +2,7 @@
 
 A grasp's two contact points say little about what its 22 x 37.5 mm pads will press on. `PadFootprint` finds, on a
 dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
-its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.antipodal.pad_touches`), with the pad widened
+its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.pads.pad_touches`), with the pad widened
 by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge
 takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
 just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
@@ -17,7 +17,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from seggrasp.grasp.antipodal import AntipodalConfig, pad_touches
+from seggrasp.grasp.antipodal import AntipodalConfig
+from seggrasp.grasp.pads import pad_touches
 from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
 
 
