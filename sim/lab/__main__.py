@@ -1,0 +1,220 @@
+"""`python -m sim.lab serve|run`: the emulated lab cell.
+
+    python -m sim.lab serve --kinematic [--controller cb3|e-series] [--polyscope 3.15.7] ...
+    python -m sim.lab serve --object mug_classic [--seed 0]          (the PyBullet twin drives the arm)
+    python -m sim.lab run [serve options] -- CMD ...
+
+`serve` listens on --host (127.0.0.1): dashboard 29999, script 30003, RTDE 30004, the Robotiq URCap socket 63352
+(when sim/lab/robotiq.py is there) and, last, the control channel 29990; it runs until SIGTERM or Ctrl-C. `run`
+re-executes itself in a private network namespace (`unshare -n`, or `unshare -rn` without root), brings the
+loopback up, starts `serve` as a child, waits until the control channel answers, runs CMD there, stops the
+emulator and exits with CMD's exit code (128 + N when a signal N killed it). Where no namespace can be made, it
+serves on the host's loopback if every port is free and otherwise exits 2 naming the taken port.
+"""
+
+from __future__ import annotations
+
+import argparse
+import errno
+import logging
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from sim.lab import netns
+
+log = logging.getLogger("sim.lab")
+
+#: The run-only option (and its argument) that is not passed on to `serve`.
+_RUN_ONLY = "--ready-timeout"
+
+
+def add_serve_options(parser: argparse.ArgumentParser) -> None:
+    """The options of `serve` (also accepted by `run`, which passes them on)."""
+    from sim.lab.controller import DEFAULT_POLYSCOPE, GENERATIONS
+
+    parser.add_argument("--host", default="127.0.0.1", help="address every port listens on (default 127.0.0.1)")
+    parser.add_argument("--kinematic", action="store_true", help="arm and fingers without physics (no twin)")
+    parser.add_argument("--object", help="twin mode: the object placed in the scene, e.g. mug_classic")
+    parser.add_argument("--seed", type=int, default=0, help="twin mode: scene seed (default 0)")
+    parser.add_argument("--recordings", help="twin mode: folder for the camera recordings (default: a temp dir)")
+    parser.add_argument("--controller", choices=sorted(GENERATIONS), default="e-series",
+                        help="controller generation: cb3 streams RTDE at 125 Hz, e-series at 500 Hz")
+    parser.add_argument("--polyscope", help="PolyScope version X.Y.Z (default "
+                        + ", ".join(f"{g} {v}" for g, v in DEFAULT_POLYSCOPE.items()) + ")")
+    parser.add_argument("--serial", default="20235500001", help="the robot's serial number (dashboard)")
+    parser.add_argument("--unlock-delay", type=float, default=5.0,
+                        help="seconds after a protective stop before it can be unlocked (default 5, as on the robot)")
+    parser.add_argument("--log-level", default="warning", choices=["debug", "info", "warning", "error"])
+
+
+@dataclass
+class Models:
+    """What the emulator drives: the arm, the fingers (None without a gripper server) and their lifecycle."""
+
+    arm: Any
+    fingers: Any
+    start: Callable[[], None] = lambda: None
+    close: Callable[[], None] = lambda: None
+    gripper_options: dict = field(default_factory=dict)  # start_gripper_server's options (step_period, lock)
+
+
+def _robotiq() -> Any:
+    """sim.lab.robotiq (the URCap socket server) if it is there, else None."""
+    try:
+        from sim.lab import robotiq
+    except ModuleNotFoundError as exc:
+        if exc.name != "sim.lab.robotiq":
+            raise
+        return None
+    return robotiq
+
+
+def build_models(args: argparse.Namespace) -> Models:
+    """The arm and finger models `serve` drives: kinematic ones, or the twin's (sim/lab/twin.py)."""
+    if args.kinematic:
+        from sim.lab.kinematic import KinematicArm
+
+        robotiq = _robotiq()
+        return Models(KinematicArm(), robotiq.KinematicFingers() if robotiq else None)
+    if not args.object:
+        raise SystemExit("sim.lab serve: name the object to place (--object mug_classic) or pass --kinematic")
+    try:
+        from sim.lab.twin import twin_models
+    except ModuleNotFoundError as exc:
+        if exc.name != "sim.lab.twin":
+            raise
+        raise SystemExit("sim.lab serve: the twin-driven cell needs sim/lab/twin.py; pass --kinematic") from None
+    return twin_models(object_id=args.object, seed=args.seed, recordings=args.recordings)
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Serve the emulated cell until SIGTERM/SIGINT."""
+    from sim.lab.control import ControlServer, install_controller_commands
+    from sim.lab.controller import DEFAULT_POLYSCOPE, Controller, ControllerSettings, parse_polyscope
+    from sim.lab.dashboard import DashboardServer
+
+    logging.basicConfig(level=args.log_level.upper(), format="sim.lab %(levelname)s %(name)s: %(message)s")
+    try:
+        settings = ControllerSettings(generation=args.controller,
+                                      polyscope=parse_polyscope(args.polyscope or DEFAULT_POLYSCOPE[args.controller],
+                                                                args.controller),
+                                      serial=args.serial, unlock_delay=args.unlock_delay)
+    except ValueError as exc:
+        print(f"sim.lab serve: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    closers: list[Callable[[], None]] = []
+    try:
+        models = build_models(args)
+        closers.append(models.close)
+        controller = Controller(models.arm, settings, host=args.host)
+        closers.append(controller.close)
+        dashboard = DashboardServer(controller, host=args.host)
+        closers.append(dashboard.close)
+        servers = {dashboard.port: dashboard, controller.script_port.port: controller.script_port,
+                   controller.rtde.port: controller.rtde}
+        robotiq = _robotiq()
+        gripper = None
+        if robotiq is not None and models.fingers is not None:
+            gripper = robotiq.start_gripper_server(models.fingers, host=args.host, **models.gripper_options)
+            closers.append(gripper.close)
+            servers[gripper.port] = gripper
+        install_controller_commands(controller, dashboard, servers, gripper)
+        controller.start()
+        models.start()
+        control = ControlServer(host=args.host)
+        closers.append(control.close)
+    except OSError as exc:
+        print(f"sim.lab serve: cannot listen on {args.host}: {exc.strerror or exc} "
+              f"({'a port is taken' if exc.errno == errno.EADDRINUSE else 'see the error'})", file=sys.stderr)
+        for close in reversed(closers):
+            close()
+        return 2
+    log.info("serving %s PolyScope %s on %s", settings.generation, ".".join(map(str, settings.polyscope)), args.host)
+    stop.wait()
+    for close in reversed(closers):
+        close()
+    return 0
+
+
+def run(args: argparse.Namespace, serve_argv: list[str], command: list[str]) -> int:
+    """Run `command` against a fresh emulated cell (in a private network namespace where one can be made)."""
+    from sim.lab.control import CONTROL_PORT, request
+
+    if not command:
+        print("sim.lab run: give the command after --, e.g. python -m sim.lab run --kinematic -- python x.py",
+              file=sys.stderr)
+        return 2
+    if not netns.in_private_namespace():
+        prefix = netns.unshare_command()
+        if prefix is not None:
+            os.execvpe(prefix[0], [*prefix, sys.executable, "-m", "sim.lab", "run", *sys.argv[2:]],
+                       {**os.environ, netns.NETNS_ENV: "1"})
+        ports = [29999, 30003, 30004, 63352, CONTROL_PORT]
+        taken = netns.taken_port(args.host, ports)
+        if taken is not None:
+            print(f"sim.lab run: no private network namespace here (unshare -n failed) and port {taken} on "
+                  f"{args.host} is taken; free it or run as root", file=sys.stderr)
+            return 2
+        print(f"sim.lab run: no private network namespace here; serving on the host's {args.host}", file=sys.stderr)
+    else:
+        netns.loopback_up()
+    emulator = subprocess.Popen([sys.executable, "-m", "sim.lab", "serve", *serve_argv])
+    try:
+        deadline = time.monotonic() + args.ready_timeout
+        if not netns.wait_for_port(args.host, CONTROL_PORT, deadline, lambda: emulator.poll() is None):
+            code = emulator.poll()
+            why = f"exited with code {code}" if code is not None else f"was not up within {args.ready_timeout:g} s"
+            print(f"sim.lab run: the emulator {why}", file=sys.stderr)
+            return 2
+        request("ping", host=args.host, timeout=max(1.0, deadline - time.monotonic()))
+        client = subprocess.Popen(command)
+        forward = lambda signum, _frame: client.send_signal(signum)  # noqa: E731
+        signal.signal(signal.SIGTERM, forward)
+        signal.signal(signal.SIGINT, forward)
+        code = client.wait()
+        return code if code >= 0 else 128 - code
+    finally:
+        emulator.terminate()
+        try:
+            emulator.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            emulator.kill()
+            emulator.wait()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(prog="python -m sim.lab", description=__doc__.split("\n\n")[0])
+    commands = parser.add_subparsers(dest="command", required=True)
+    add_serve_options(commands.add_parser("serve", help="serve the emulated cell until stopped"))
+    run_parser = commands.add_parser("run", help="run a command against a fresh emulated cell, then stop it")
+    add_serve_options(run_parser)
+    run_parser.add_argument(_RUN_ONLY, type=float, default=60.0,
+                            help="seconds to wait for the emulator's ports (default 60)")
+    head, command = (argv[:argv.index("--")], argv[argv.index("--") + 1:]) if "--" in argv else (argv, [])
+    args = parser.parse_args(head)
+    if args.command == "serve":
+        return serve(args)
+    serve_argv = []
+    skip = False
+    for token in head[1:]:
+        if skip:
+            skip = False
+        elif token == _RUN_ONLY:
+            skip = True
+        elif not token.startswith(_RUN_ONLY + "="):
+            serve_argv.append(token)
+    return run(args, serve_argv, command)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
