@@ -28,7 +28,7 @@ from hardware.calibration import (EXTRINSIC_KEYS, EYE_IN_HAND_METHODS, EYE_TO_HA
 from hardware.cell import RealCell, make_guard
 from hardware.config import ConfigError, load_config
 from hardware.errors import HardwareError
-from hardware.fields import read_yaml, transform_from_config
+from hardware.fields import FieldReader, read_yaml
 from hardware.kinematics import forward_kinematics
 
 
@@ -93,7 +93,8 @@ def _read_poses(path: Path) -> list[np.ndarray]:
     data = read_yaml(path, "poses file")
     if not isinstance(data, dict) or not isinstance(data.get("poses"), list) or not data["poses"]:
         raise ValueError(f"{path}: expected 'poses:' with a list of 4x4 matrices or {{xyz, rpy}} entries")
-    return [transform_from_config(pose, f"poses[{index}]", str(path)) for index, pose in enumerate(data["poses"])]
+    reader = FieldReader(str(path), data)
+    return [reader.transform(pose, f"poses[{index}]") for index, pose in enumerate(data["poses"])]
 
 
 def _calibration_output(args: argparse.Namespace, configured: Path | None) -> tuple[Path, dict]:

@@ -26,7 +26,7 @@ import cv2
 import numpy as np
 import yaml
 
-from hardware.fields import read_yaml, transform_from_config
+from hardware.fields import FieldReader, read_yaml
 from seggrasp.io import atomic_write_text
 
 log = logging.getLogger(__name__)
@@ -48,17 +48,17 @@ def load_extrinsics(path: str | Path) -> dict[str, dict[str, np.ndarray]]:
     data = read_yaml(path, "calibration file")
     if not isinstance(data, dict):
         data = {}
+    r = FieldReader(str(path), data)
     unknown = sorted(set(map(str, data)) - {*EXTRINSIC_KEYS, "metadata"})
     if unknown:
-        raise ValueError(f"calibration file {path}: unknown key {unknown[0]!r} (allowed: "
-                         f"{', '.join(EXTRINSIC_KEYS)}, metadata)")
+        raise r.error(unknown[0], f"unknown key in the calibration file (allowed: {', '.join(EXTRINSIC_KEYS)}, "
+                      "metadata)")
     extrinsics: dict[str, dict[str, np.ndarray]] = {}
     for key in EXTRINSIC_KEYS:
         entries = data.get(key) or {}
         if not isinstance(entries, dict):
-            raise ValueError(f"calibration file {path}: {key} must map camera serials to 4x4 matrices")
-        extrinsics[key] = {str(serial): transform_from_config(T, f"{key}.{serial}", str(path))
-                           for serial, T in entries.items()}
+            raise r.error(key, "must map camera serials to 4x4 matrices")
+        extrinsics[key] = {str(serial): r.transform(T, f"{key}.{serial}") for serial, T in entries.items()}
     if not any(extrinsics.values()):
         raise ValueError(f"calibration file {path} must contain 'T_world_cam: {{<serial>: <4x4 matrix>}}' "
                          "(table-mounted cameras) and/or 'T_gripper_cam: {...}' (wrist-mounted cameras)")

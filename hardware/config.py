@@ -1,14 +1,18 @@
 """The cell configuration: one YAML file for the robot, gripper, cameras, calibration, limits and workspace.
 
 `load_config(path)` reads and validates the file; every problem is reported as a `ConfigError` (a `ValueError`)
-that names the offending field, e.g. ``cell.yaml: limits.max_tool_speed: must be a positive number, got -1``.
-Unknown keys are errors too, so a typo cannot silently drop a limit, and so are duplicated keys (the strict reader
-in `hardware/fields.py`). The workspace box must be within the arm's reach and clear of the robot's base column.
-See `hardware/cell.example.yaml`.
+in one sentence naming the file, the line and the field, e.g.
+``cell.yaml:58: limits.max_tool_speed: must be a positive number, got -1``. Unknown keys are errors too, so a typo
+cannot silently drop a limit, and so are duplicated keys and base-60 numbers (the strict reader in
+`hardware/fields.py`). Speeds, accelerations, forces and the stroke are bounded by what the UR5/UR5e and the 2F-85
+can do (the constants below), times by what a cell can sensibly wait. The workspace box must be within the arm's
+reach and clear of the robot's base column. See `hardware/cell.example.yaml`.
 """
 
 from __future__ import annotations
 
+import ipaddress
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,16 +21,38 @@ from typing import Any
 import numpy as np
 
 from hardware.calibration import load_extrinsics
-from hardware.fields import ConfigError, FieldReader, read_yaml
+from hardware.fields import ConfigError, FieldReader, read_yaml, shown
 from hardware.kinematics import ARM_MODELS
-from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
+from seggrasp.cell import DEFAULT_GRIP_FORCE, FINGER_SPEED_RANGE, GRIP_FORCE_RANGE
+from seggrasp.grasp.types import GripperGeometry
 
 #: Arm models whose nominal kinematics (hardware/kinematics.py) the joint-path safety check knows.
 UR_MODELS = tuple(ARM_MODELS)
-#: The 2F-85's finger speed range (m/s, datasheet); its grip force range (N, `GRIP_FORCE_RANGE`) and the default
-#: force are the ones the twin uses (`seggrasp.cell`). Registers 0-255 span each range linearly.
-FINGER_SPEED_RANGE = (0.020, 0.150)
-_HOST = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9.-]*[A-Za-z0-9])?")
+#: The 2F-85's finger speed and grip force ranges and the default force live in `seggrasp.cell`; its 85 mm stroke
+#: (datasheet) is the grasp planner's `GripperGeometry.max_opening`. A measured `gripper.stroke` (the opening
+#: between the pads when fully open) may fall short of it with thicker custom pads, down to half.
+STROKE_2F85 = GripperGeometry.max_opening
+STROKE_RANGE = (0.5 * STROKE_2F85, 1.03 * STROKE_2F85)
+#: UR5 (CB3) and UR5e datasheets: every joint turns at up to 180 deg/s (3.14 rad/s); the tool ("TCP speed,
+#: typical") at up to 1 m/s.
+UR_JOINT_SPEED_MAX = 3.14
+UR_TOOL_SPEED_MAX = 1.0
+#: Neither datasheet gives an acceleration. These are the largest the controller interface takes: ur_rtde 1.6.5
+#: raises for moveJ a > 40 rad/s^2 and moveL a > 150 m/s^2 (bridge audit, section 1), so a larger limit would be
+#: planned by a dry run and fail at the robot's first motion.
+UR_JOINT_ACCELERATION_MAX = 40.0
+UR_TOOL_ACCELERATION_MAX = 150.0
+#: Longest waits (s) a config may set. A motion that the cell's speeds plan to take longer than MAX_MOTION_TIMEOUT
+#: is a configuration mistake (the UR5 crosses its whole reach in seconds), and so is a gripper reply or finger
+#: settle margin beyond MAX_GRIPPER_TIMEOUT (the URCap answers within milliseconds, a full 2F-85 stroke takes
+#: 85 mm / 20 mm/s = 4.25 s at its slowest). The hold is ten times the twin's 1 s at most: longer only delays the
+#: verdict.
+MAX_MOTION_TIMEOUT = 300.0
+MAX_GRIPPER_TIMEOUT = 60.0
+MAX_HOLD_TIME = 10.0
+#: A joint move the cell may make (home from a grasp): at most half a turn of the leading joint.
+LONGEST_JOINT_MOVE = math.pi
+_HOST_LABEL = re.compile(r"[A-Za-z0-9](?:[A-Za-z0-9-]{0,61}[A-Za-z0-9])?")
 
 
 @dataclass(frozen=True)
@@ -49,7 +75,7 @@ class GripperConfig:
     stroke: float  # m, finger opening at `open_register`
     open_register: int  # POS register value read when fully open (about 3 after activation)
     closed_register: int  # POS register value read when closed on nothing (about 230 after activation)
-    timeout: float  # s, per socket reply and per finger motion
+    timeout: float  # s, per socket reply; a finger motion may take its travel at the commanded speed plus this
     speed: float  # m/s finger speed used for grasps (the 2F-85 does 0.02-0.15)
     force: float  # N grip force used for grasps (the 2F-85 does 20-235)
     tip_beyond_origin: float  # m the fingertips reach past the gripper origin (pad centres) along +z
@@ -82,6 +108,7 @@ class CameraConfig:
     fps: int
     mount: str
     T_mount_cam: np.ndarray  # (4, 4)
+    recording: Path | None = None  # a pyrealsense2 .db3 recording played instead of the live camera
 
     def T_world_cam(self, T_world_gripper: np.ndarray | None = None) -> np.ndarray:
         """The camera's pose in the world; a wrist camera needs the gripper's pose."""
@@ -133,9 +160,11 @@ class CellConfig:
     motion: MotionConfig
     interactive: bool  # wait for Enter on reset (only when stdin is a terminal)
     calibration_file: Path | None = None  # calibration.file resolved against the config's folder, if given
+    emulator: dict | None = None  # the `emulator:` section: this cell is emulated by `python -m sim.lab`
 
 
-_TOP_KEYS = {"robot", "gripper", "cameras", "calibration", "workspace", "table", "limits", "motion", "interactive"}
+_TOP_KEYS = {"robot", "gripper", "cameras", "calibration", "workspace", "table", "limits", "motion", "interactive",
+             "emulator"}
 
 
 def load_config(path: str | Path, *, require_calibration: bool = True) -> CellConfig:
@@ -151,7 +180,7 @@ def load_config(path: str | Path, *, require_calibration: bool = True) -> CellCo
 
 def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> CellConfig:
     """Validate already-parsed YAML `data`; `path` names the source in errors and anchors relative file paths."""
-    r = FieldReader(str(path))
+    r = FieldReader(str(path), data)
     if not isinstance(data, dict):
         raise ConfigError(f"{path}: the top level must be a mapping with sections {sorted(_TOP_KEYS)}")
     r.check_keys(data, "", _TOP_KEYS)
@@ -161,17 +190,20 @@ def parse_config(data: Any, path: Path, *, require_calibration: bool = True) -> 
     limits = _parse_limits(r, data)
     _check_workspace_reach(r, limits, robot)
     motion = _parse_motion(r, data, limits, gripper)
+    _check_motion_timeout(r, robot, limits, motion)
     cameras = _parse_cameras(r, data, path, require_calibration)
+    emulator = data.get("emulator")
+    if emulator is not None and not isinstance(emulator, dict):
+        raise r.error("emulator", f"must be a mapping of `python -m sim.lab serve` options, got {shown(emulator)}")
     return CellConfig(path=path, robot=robot, gripper=gripper, cameras=cameras, limits=limits, motion=motion,
                       interactive=r.boolean(data, "interactive", "", False),
-                      calibration_file=_calibration_file(r, data.get("calibration") or {}, path))
+                      calibration_file=_calibration_file(r, data.get("calibration") or {}, path),
+                      emulator=None if emulator is None else dict(emulator))
 
 
 def _parse_robot(r: FieldReader, data: dict) -> RobotConfig:
     section = r.section(data, "robot", "", {"ip", "model", "home_joints", "tcp_offset", "motion_timeout"})
-    ip = r.string(section, "ip", "robot.")
-    if not _HOST.fullmatch(ip):
-        raise r.error("robot.ip", f"must be an IP address or host name, got {ip!r}")
+    ip = _host(r, section, "ip", "robot.")
     model = r.string(section, "model", "robot.", "ur5").lower()
     if model not in UR_MODELS:
         raise r.error("robot.model", f"must be one of {UR_MODELS}, got {model!r}")
@@ -186,7 +218,34 @@ def _parse_robot(r: FieldReader, data: dict) -> RobotConfig:
     if not 0.0 < T_flange_gripper[2, 3] < 0.5:
         raise r.error("robot.tcp_offset", "the fingertip centre must lie 0-0.5 m in front of the flange (+z)")
     return RobotConfig(ip=ip, model=model, home_joints=home, T_flange_gripper=T_flange_gripper,
-                       motion_timeout=r.number(section, "motion_timeout", "robot.", 30.0, positive=True))
+                       motion_timeout=r.number(section, "motion_timeout", "robot.", 30.0, positive=True,
+                                               high=MAX_MOTION_TIMEOUT))
+
+
+def _host(r: FieldReader, section: dict, key: str, prefix: str, default: str | None = None) -> str:
+    """An IPv4 address or a DNS host name: all-numeric dotted text must be a usable IPv4 address (``256.300.1.999``
+    and ``0`` are not), a name must be one a resolver takes (labels of letters, digits and inner hyphens)."""
+    name = f"{prefix}{key}"
+    value = section.get(key, default)
+    if value is None:
+        raise r.error(name, "missing (the controller's IP address or host name)")
+    if not isinstance(value, str) or not value.strip():
+        raise r.error(name, f"must be an IP address or host name, got {shown(value)}")
+    host = value.strip()
+    labels = host.split(".")
+    if all(label.isdigit() for label in labels):
+        try:
+            address = ipaddress.IPv4Address(host)
+        except ValueError:
+            raise r.error(name, f"{host!r} is not an IPv4 address (four numbers 0-255 such as 192.168.1.10)") \
+                from None
+        if address.is_unspecified or address.is_multicast or address == ipaddress.IPv4Address("255.255.255.255"):
+            raise r.error(name, f"{host} is not the address of one machine (unspecified, multicast or broadcast)")
+        return host
+    if len(host) > 253 or not all(_HOST_LABEL.fullmatch(label) for label in labels):
+        raise r.error(name, f"must be an IP address or host name (letters, digits, inner hyphens, dots), got "
+                      f"{shown(host)}")
+    return host
 
 
 def _parse_gripper(r: FieldReader, data: dict, robot_ip: str) -> GripperConfig:
@@ -194,25 +253,24 @@ def _parse_gripper(r: FieldReader, data: dict, robot_ip: str) -> GripperConfig:
                                               "timeout", "speed", "force", "tip_beyond_origin", "closing_shift"})
     p = "gripper."
     config = GripperConfig(
-        host=r.string(section, "host", p, robot_ip),
+        host=_host(r, section, "host", p, robot_ip),
         port=r.integer(section, "port", p, 63352, low=1, high=65535),
-        stroke=r.number(section, "stroke", p, 0.085, positive=True),
+        stroke=r.number(section, "stroke", p, STROKE_2F85, positive=True),
         open_register=r.integer(section, "open_register", p, 3, low=0, high=255),
         closed_register=r.integer(section, "closed_register", p, 230, low=0, high=255),
-        timeout=r.number(section, "timeout", p, 5.0, positive=True),
+        timeout=r.number(section, "timeout", p, 5.0, positive=True, high=MAX_GRIPPER_TIMEOUT),
         speed=r.number(section, "speed", p, 0.05, low=FINGER_SPEED_RANGE[0], high=FINGER_SPEED_RANGE[1]),
         force=r.number(section, "force", p, DEFAULT_GRIP_FORCE, low=GRIP_FORCE_RANGE[0], high=GRIP_FORCE_RANGE[1]),
         tip_beyond_origin=r.number(section, "tip_beyond_origin", p, 0.02, non_negative=True),
         closing_shift=r.number(section, "closing_shift", p, 0.0),
     )
-    if not _HOST.fullmatch(config.host):
-        raise r.error("gripper.host", f"must be an IP address or host name, got {config.host!r}")
     if abs(config.closing_shift) > 0.05:
         raise r.error("gripper.closing_shift", f"{config.closing_shift} m is implausible for a 2F-85 (|shift| <= 0.05)")
     if config.closed_register <= config.open_register:
         raise r.error("gripper.closed_register", "must be greater than gripper.open_register")
-    if config.stroke > 0.2:
-        raise r.error("gripper.stroke", f"{config.stroke} m is not a 2F gripper stroke (metres, e.g. 0.085)")
+    if not STROKE_RANGE[0] <= config.stroke <= STROKE_RANGE[1]:
+        raise r.error("gripper.stroke", f"{config.stroke:g} m is not a 2F-85's opening between the pads (metres: "
+                      f"{STROKE_RANGE[0]:.4g}-{STROKE_RANGE[1]:.4g}, datasheet stroke {STROKE_2F85:g})")
     return config
 
 
@@ -267,10 +325,15 @@ def _parse_limits(r: FieldReader, data: dict) -> Limits:
         max_joint_acceleration=r.number(section, "max_joint_acceleration", p, 1.4, positive=True),
         max_grip_force=r.number(section, "max_grip_force", p, DEFAULT_GRIP_FORCE, positive=True),
     )
-    if limits.max_tool_speed > 1.0:
-        raise r.error("limits.max_tool_speed", f"{limits.max_tool_speed} m/s is above the 1 m/s the bridge allows")
-    if limits.max_joint_speed > 3.14:
-        raise r.error("limits.max_joint_speed", f"{limits.max_joint_speed} rad/s is above the UR5's 3.14 rad/s")
+    for name, value, cap, unit, source in (
+            ("max_tool_speed", limits.max_tool_speed, UR_TOOL_SPEED_MAX, "m/s", "the UR5/UR5e's datasheet tool speed"),
+            ("max_joint_speed", limits.max_joint_speed, UR_JOINT_SPEED_MAX, "rad/s", "the UR5/UR5e's datasheet joint speed"),
+            ("max_tool_acceleration", limits.max_tool_acceleration, UR_TOOL_ACCELERATION_MAX, "m/s^2",
+             "the largest tool acceleration the UR controller interface accepts"),
+            ("max_joint_acceleration", limits.max_joint_acceleration, UR_JOINT_ACCELERATION_MAX, "rad/s^2",
+             "the largest joint acceleration the UR controller interface accepts")):
+        if value > cap:
+            raise r.error(f"limits.{name}", f"{value:g} {unit} is above {source} ({cap:g} {unit})")
     return limits
 
 
@@ -288,7 +351,7 @@ def _parse_motion(r: FieldReader, data: dict, limits: Limits, gripper: GripperCo
                                     positive=True),
         pregrasp_distance=r.number(section, "pregrasp_distance", p, 0.10, positive=True),
         lift_height=r.number(section, "lift_height", p, 0.20, positive=True),
-        hold_time=r.number(section, "hold_time", p, 1.0, non_negative=True),
+        hold_time=r.number(section, "hold_time", p, 1.0, low=0.0, high=MAX_HOLD_TIME),
         opening_margin=r.number(section, "opening_margin", p, 0.02, non_negative=True),
     )
     for name, value, cap in (("tool_speed", motion.tool_speed, limits.max_tool_speed),
@@ -300,6 +363,28 @@ def _parse_motion(r: FieldReader, data: dict, limits: Limits, gripper: GripperCo
     if gripper.force > limits.max_grip_force:
         raise r.error("gripper.force", f"{gripper.force} N exceeds limits.max_grip_force = {limits.max_grip_force}")
     return motion
+
+
+def _motion_time(distance: float, speed: float, acceleration: float) -> float:
+    """Seconds a trapezoidal (or, when too short to reach `speed`, triangular) profile takes over `distance`."""
+    if distance * acceleration >= speed ** 2:
+        return distance / speed + speed / acceleration
+    return 2.0 * math.sqrt(distance / acceleration)
+
+
+def _check_motion_timeout(r: FieldReader, robot: RobotConfig, limits: Limits, motion: MotionConfig) -> None:
+    """Refuse speeds so slow that an ordinary motion (a straight move across the workspace box's diagonal, half a
+    turn of a joint) would outlast `robot.motion_timeout` and be stopped half way as a failure."""
+    diagonal = float(np.linalg.norm(limits.workspace_max - limits.workspace_min))
+    for field, what, duration in (
+            ("motion.tool_speed", f"a straight move across the workspace ({diagonal:.2f} m) at "
+             f"{motion.tool_speed:g} m/s", _motion_time(diagonal, motion.tool_speed, motion.tool_acceleration)),
+            ("motion.joint_speed", f"half a joint turn at {motion.joint_speed:g} rad/s",
+             _motion_time(LONGEST_JOINT_MOVE, motion.joint_speed, motion.joint_acceleration))):
+        if duration > robot.motion_timeout:
+            raise r.error(field, f"{what} takes {duration:.3g} s, longer than robot.motion_timeout "
+                          f"({robot.motion_timeout:g} s): speed the motion up or raise the timeout (at most "
+                          f"{MAX_MOTION_TIMEOUT:g} s)")
 
 
 def _parse_cameras(r: FieldReader, data: dict, path: Path, require_calibration: bool) -> tuple[CameraConfig, ...]:
@@ -314,7 +399,7 @@ def _parse_cameras(r: FieldReader, data: dict, path: Path, require_calibration: 
         p = f"cameras[{index}]."
         if not isinstance(entry, dict):
             raise r.error(f"cameras[{index}]", f"must be a mapping with a serial, got {entry!r}")
-        r.check_keys(entry, p, {"serial", "name", "width", "height", "fps", "mount"})
+        r.check_keys(entry, p, {"serial", "name", "width", "height", "fps", "mount", "recording"})
         serial = r.string(entry, "serial", p)
         mount = r.string(entry, "mount", p, "table")
         if mount not in CAMERA_MOUNTS:
@@ -330,6 +415,7 @@ def _parse_cameras(r: FieldReader, data: dict, path: Path, require_calibration: 
             fps=r.integer(entry, "fps", p, 30, low=1, high=300),
             mount=mount,
             T_mount_cam=extrinsics[key].get(serial, np.eye(4)),
+            recording=_recording(r, entry, p, path),
         ))
     serials = [c.serial for c in cameras]
     if len(set(serials)) != len(serials):
@@ -338,6 +424,18 @@ def _parse_cameras(r: FieldReader, data: dict, path: Path, require_calibration: 
     if len(set(names)) != len(names):
         raise r.error("cameras", f"camera names must be distinct, got {names}")
     return tuple(cameras)
+
+
+def _recording(r: FieldReader, entry: dict, prefix: str, path: Path) -> Path | None:
+    """cameras[i].recording resolved against the config's folder (`~` expanded); it need not exist yet (the
+    emulated cell writes it after the first placement; the camera names a missing file when it starts)."""
+    if "recording" not in entry:
+        return None
+    recording = Path(r.string(entry, "recording", prefix)).expanduser()
+    if recording.suffix != ".db3":
+        raise r.error(f"{prefix}recording", "must be a .db3 file (pyrealsense2 2.59 plays and records ROS 2 .db3 "
+                      f"bags only), got {shown(str(recording))}")
+    return recording if recording.is_absolute() else path.parent / recording
 
 
 def _calibration_file(r: FieldReader, section: dict, path: Path) -> Path | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import re
 
 import numpy as np
 import pytest
@@ -47,7 +48,8 @@ def mutate(tmp_path, change) -> ConfigError:
     (lambda d: d["limits"].update(max_grip_force=80.0), "gripper.force", "exceeds limits.max_grip_force"),
     (lambda d: d["limits"].update(max_tool_speed=-1), "limits.max_tool_speed", "positive number, got -1"),
     (lambda d: d["limits"].update(max_tool_speed="fast"), "limits.max_tool_speed", "finite number"),
-    (lambda d: d["limits"].update(max_tool_speed=2.0), "limits.max_tool_speed", "above the 1 m/s"),
+    (lambda d: d["limits"].update(max_tool_speed=2.0), "limits.max_tool_speed",
+     "above the UR5/UR5e's datasheet tool speed (1 m/s)"),
     (lambda d: d["motion"].update(tool_speed=0.5), "motion.tool_speed", "exceeds limits.max_tool_speed"),
     (lambda d: d["workspace"].update(max=[0.2, 0.3, 0.55]), "workspace.max", "must exceed workspace.min"),
     (lambda d: d["table"].update(height=1.0), "table.height", "inside the workspace"),
@@ -65,12 +67,12 @@ def mutate(tmp_path, change) -> ConfigError:
     (lambda d: d.update(interactive="yes"), "interactive", "true or false"),
     (lambda d: d.update(robots={}), "robots", "unknown key"),
     # values the bridge used to clip or misread silently
-    (lambda d: d["gripper"].update(force=10.0), "gripper.force", "must be in [20.0, 235.0]"),
+    (lambda d: d["gripper"].update(force=10.0), "gripper.force", "must be in [20, 235]"),
     (lambda d: d["gripper"].update(speed=50), "gripper.speed", "must be in [0.02, 0.15]"),
     (lambda d: d["gripper"].update(host="10.0.0.1; rm"), "gripper.host", "IP address or host name"),
     (lambda d: d["limits"].update(min_table_clearance="5e-3"), "limits.min_table_clearance",
      "YAML reads '5e-3' as text"),
-    (lambda d: d["robot"].update(home_joints=[True, 0, 0, 0, 0, 0]), "robot.home_joints", "list of 6 numbers"),
+    (lambda d: d["robot"].update(home_joints=[True, 0, 0, 0, 0, 0]), "robot.home_joints", "list of 6 finite"),
     # a box the arm cannot reach, or one reaching into the robot's own base column
     (lambda d: d["workspace"].update(max=[1.2, 0.3, 0.55]), "workspace", "beyond its reach"),
     (lambda d: d["workspace"].update(min=[-0.3, -0.3, 0.0]), "workspace", "inside its base column"),
@@ -79,9 +81,22 @@ def mutate(tmp_path, change) -> ConfigError:
 def test_errors_name_the_field(tmp_path, change, field, problem):
     error = mutate(tmp_path, change)
     message = str(error)
-    assert message.startswith(f"{tmp_path / 'cell.yaml'}: {field}:"), message
+    assert_names_line(message, tmp_path / "cell.yaml", field)
     assert problem in message, message
     assert isinstance(error, ValueError)
+
+
+def assert_names_line(message: str, path, field: str) -> None:
+    """The message starts `path:LINE: field:` with LINE a line of the file that holds part of the field's path (the
+    section of a missing key), or `path: field:` for a missing top-level section."""
+    found = re.match(rf"{re.escape(str(path))}(?::(\d+))?: {re.escape(field)}: ", message)
+    assert found, message
+    parts = re.findall(r"[A-Za-z_0-9]+", field)
+    if found.group(1) is None:
+        assert field in {"robot", "cameras"} and field not in path.read_text(), message  # a missing section
+        return
+    line = path.read_text().splitlines()[int(found.group(1)) - 1]
+    assert any(part in line for part in parts) or line.lstrip().startswith("- "), (message, line)
 
 
 def test_missing_and_malformed_files(tmp_path):
@@ -165,7 +180,7 @@ def test_duplicates_in_the_calibration_file_are_errors_too(tmp_path):
     with pytest.raises(ConfigError, match="duplicate key '012345678901': first at line 1, again at line 1"):
         load_config(tmp_path / "cell.yaml")  # in a one-line mapping too
     (tmp_path / "calibration.yaml").write_text(f'T_world_cam:\n  "012345678901": {T}\nT_world_cams: {{}}\n')
-    with pytest.raises(ConfigError, match="unknown key 'T_world_cams'"):
+    with pytest.raises(ConfigError, match="calibration.yaml:3: T_world_cams: unknown key"):
         load_config(tmp_path / "cell.yaml")
 
 
@@ -174,3 +189,114 @@ def test_a_serial_yaml_would_read_as_octal_must_be_quoted(tmp_path):
     (tmp_path / "cell.yaml").write_text(text)
     with pytest.raises(ConfigError, match="'01234567' is read by YAML as a base-8/base-60 number"):
         load_config(tmp_path / "cell.yaml")
+
+
+def edited_example(tmp_path, old: str, new: str) -> tuple:
+    """The example config with its line starting `old` replaced by `new`: (path, number of that line)."""
+    lines = EXAMPLE_CONFIG.read_text().splitlines()
+    index = next(i for i, line in enumerate(lines) if line.startswith(old))
+    lines[index] = new
+    path = tmp_path / "cell.yaml"
+    path.write_text("\n".join(lines) + "\n")
+    return path, index + 1
+
+
+# issue 34: values the UR5/UR5e and the 2F-85 cannot do, or waits no cell needs, used to be accepted (the dry run
+# planned a 500 m/s^2 move as reachable); each is refused in one sentence naming the file, the line and the field
+@pytest.mark.parametrize("old, new, field, problem", [
+    ("  max_tool_acceleration:", "  max_tool_acceleration: 500", "limits.max_tool_acceleration",
+     "500 m/s^2 is above the largest tool acceleration the UR controller interface accepts (150 m/s^2)"),
+    ("  max_joint_acceleration:", "  max_joint_acceleration: 800", "limits.max_joint_acceleration",
+     "800 rad/s^2 is above the largest joint acceleration the UR controller interface accepts (40 rad/s^2)"),
+    ("  timeout:", "  timeout: 1.0e+9", "gripper.timeout", "must be at most 60, got 1000000000.0"),
+    ("  motion_timeout:", "  motion_timeout: 1.0e+9", "robot.motion_timeout", "must be at most 300"),
+    ("  hold_time:", "  hold_time: 1000", "motion.hold_time", "must be in [0, 10], got 1000"),
+    ("  ip:", "  ip: 256.300.1.999", "robot.ip", "'256.300.1.999' is not an IPv4 address"),
+    ("  ip:", "  ip: 0", "robot.ip", "must be an IP address or host name, got 0"),
+    ("  ip:", "  ip: '0'", "robot.ip", "'0' is not an IPv4 address"),
+    ("  ip:", "  ip: 10.1.1", "robot.ip", "'10.1.1' is not an IPv4 address"),
+    ("  ip:", "  ip: 0.0.0.0", "robot.ip", "not the address of one machine"),
+    ("  ip:", "  ip: 255.255.255.255", "robot.ip", "not the address of one machine"),
+    ("  ip:", "  ip: ur5-.lab", "robot.ip", "must be an IP address or host name"),
+    ("  port: 63352", "  host: 224.0.0.1", "gripper.host", "not the address of one machine"),
+    ("  stroke:", "  stroke: 0.0001", "gripper.stroke", "0.0001 m is not a 2F-85's opening between the pads"),
+    ("  stroke:", "  stroke: 0.14", "gripper.stroke", "datasheet stroke 0.085"),
+    ("  tool_speed:", "  tool_speed: 0.0001", "motion.tool_speed",
+     "a straight move across the workspace (0.96 m) at 0.0001 m/s takes 9.55e+03 s, longer than "
+     "robot.motion_timeout (30 s)"),
+    ("  joint_speed:", "  joint_speed: 0.01", "motion.joint_speed", "half a joint turn at 0.01 rad/s takes 314 s"),
+    ("  home_joints:", "  home_joints: [1" + "0" * 400 + ", 0, 0, 0, 0, 0]", "robot.home_joints",
+     "must be a list of 6 finite numbers"),
+], ids=lambda value: value.strip()[:40] if isinstance(value, str) else None)
+def test_values_beyond_the_ur5_and_2f85_are_refused_naming_file_and_line(tmp_path, old, new, field, problem):
+    path, line = edited_example(tmp_path, old, new)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}:{line}: {field}: "), message
+    assert problem in message, message
+    assert "\n" not in message and len(message) < 400, message
+
+
+@pytest.mark.parametrize("written", ["1:30.0", "1:30", "-0:30.5"])
+def test_a_base_60_number_is_refused_naming_file_and_line(tmp_path, written):
+    path, line = edited_example(tmp_path, "  hold_time:", f"  hold_time: {written}")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value).startswith(f"{path}:{line}: '{written}' is read by YAML"), str(info.value)
+    assert "base-60" in str(info.value)
+
+
+def test_the_limits_of_the_real_arm_are_still_accepted(tmp_path):
+    data = example_config()
+    data["limits"].update(max_tool_speed=1.0, max_joint_speed=3.14, max_tool_acceleration=150.0,
+                          max_joint_acceleration=40.0)
+    data["robot"]["motion_timeout"] = 300.0
+    data["gripper"].update(timeout=60.0, stroke=0.0425, host="ur5.lab.example")
+    data["motion"]["hold_time"] = 10.0
+    config = load_config(write_config(tmp_path / "cell.yaml", data))
+    assert config.limits.max_joint_acceleration == 40.0 and config.gripper.host == "ur5.lab.example"
+
+
+@pytest.mark.parametrize("kind, text, problem", [
+    ("fifo", None, "is not a regular file"),
+    ("huge", "# " + "x" * 1_100_000 + "\n", "larger than 1000 kB"),
+    ("deep", "robot: " + "[" * 5000 + "]" * 5000 + "\n", "nested too deeply"),
+    ("latin-1", "robot:\n  ip: caf\xe9\n", "is not UTF-8 text"),
+], ids=["fifo", "huge", "deep", "latin-1"])
+def test_files_that_are_not_configs_get_one_sentence(tmp_path, kind, text, problem):
+    import os
+
+    path = tmp_path / "cell.yaml"
+    if kind == "fifo":
+        os.mkfifo(path)
+    else:
+        path.write_bytes(text.encode("latin-1"))
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert problem in str(info.value) and str(path) in str(info.value)
+    assert "\n" not in str(info.value) and len(str(info.value)) < 300
+
+
+def test_a_camera_may_play_a_recording_resolved_against_the_config(tmp_path):
+    data = example_config()
+    data["cameras"][0]["recording"] = "scene/front.db3"
+    data["cameras"][1]["recording"] = str(tmp_path / "elsewhere" / "side.db3")
+    config = load_config(write_config(tmp_path / "cell.yaml", data))
+    assert config.cameras[0].recording == tmp_path / "scene" / "front.db3"  # need not exist yet
+    assert config.cameras[1].recording == tmp_path / "elsewhere" / "side.db3"
+    data["cameras"][1]["recording"] = "scene.bag"
+    error = mutate(tmp_path, lambda d: d.update(cameras=data["cameras"]))
+    assert_names_line(str(error), tmp_path / "cell.yaml", "cameras[1].recording")
+    assert "must be a .db3 file" in str(error) and "'scene.bag'" in str(error)
+
+
+def test_an_emulated_cell_declares_itself_in_an_emulator_section(tmp_path):
+    data = example_config()
+    data["emulator"] = {"controller": "e-series", "polyscope": "5.11.1"}
+    config = load_config(write_config(tmp_path / "cell.yaml", data))
+    assert config.emulator == {"controller": "e-series", "polyscope": "5.11.1"}
+    assert load_config(EXAMPLE_CONFIG).emulator is None
+    error = mutate(tmp_path, lambda d: d.update(emulator="yes"))
+    assert_names_line(str(error), tmp_path / "cell.yaml", "emulator")
+    assert "must be a mapping" in str(error)
