@@ -5,11 +5,13 @@
     python -m sim.lab run [serve options] -- CMD ...
 
 `serve` listens on --host (127.0.0.1): dashboard 29999, script 30003, RTDE 30004, the Robotiq URCap socket 63352
-(when sim/lab/robotiq.py is there) and, last, the control channel 29990; it runs until SIGTERM or Ctrl-C. `run`
-re-executes itself in a private network namespace (`unshare -n`, or `unshare -rn` without root), brings the
-loopback up, starts `serve` as a child, waits until the control channel answers, runs CMD there, stops the
-emulator and exits with CMD's exit code (128 + N when a signal N killed it). Where no namespace can be made, it
-serves on the host's loopback if every port is free and otherwise exits 2 naming the taken port.
+and, last, the control channel 29990; it runs until SIGTERM or Ctrl-C. `run` re-executes itself in a private
+network namespace (`unshare -n`, or `unshare -rn` without root), brings the loopback up, starts the emulator
+(within --ready-timeout), runs CMD as a child process there, stops the emulator and exits with CMD's exit code
+(128 + N when a signal N killed it). The emulator runs in `run`'s own process (one start-up instead of two) and
+the client in another: ur_rtde's constructors hold the GIL and its crashes must not take the emulator along.
+Where no namespace can be made, it serves on the host's loopback if every port is free and otherwise exits 2
+naming the taken port.
 """
 
 from __future__ import annotations
@@ -22,7 +24,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -30,15 +31,12 @@ from sim.lab import netns
 
 log = logging.getLogger("sim.lab")
 
-#: The run-only option (and its argument) that is not passed on to `serve`.
-_RUN_ONLY = "--ready-timeout"
-
-
 def add_serve_options(parser: argparse.ArgumentParser) -> None:
     """The options of `serve` (also accepted by `run`, which passes them on)."""
     from sim.lab.controller import DEFAULT_POLYSCOPE, GENERATIONS
 
-    parser.add_argument("--host", default="127.0.0.1", help="address every port listens on (default 127.0.0.1)")
+    parser.add_argument("--host", help="address every port listens on (default 127.0.0.1; inside run's private "
+                        "namespace 0.0.0.0, so that a client may use any 127.x.y.z)")
     parser.add_argument("--kinematic", action="store_true", help="arm and fingers without physics (no twin)")
     parser.add_argument("--object", help="twin mode: the object placed in the scene, e.g. mug_classic")
     parser.add_argument("--seed", type=int, default=0, help="twin mode: scene seed (default 0)")
@@ -93,25 +91,30 @@ def build_models(args: argparse.Namespace) -> Models:
     return twin_models(object_id=args.object, seed=args.seed, recordings=args.recordings)
 
 
-def serve(args: argparse.Namespace) -> int:
-    """Serve the emulated cell until SIGTERM/SIGINT."""
+class LabStartError(Exception):
+    """The emulated cell could not be started (the message says why)."""
+
+
+def open_lab(args: argparse.Namespace) -> Callable[[], None]:
+    """Build and start the emulated cell; return the function that stops it. The control channel opens last."""
     from sim.lab.control import ControlServer, install_controller_commands
     from sim.lab.controller import DEFAULT_POLYSCOPE, Controller, ControllerSettings, parse_polyscope
     from sim.lab.dashboard import DashboardServer
 
-    logging.basicConfig(level=args.log_level.upper(), format="sim.lab %(levelname)s %(name)s: %(message)s")
+    args.host = args.host or ("0.0.0.0" if netns.in_private_namespace() else "127.0.0.1")
     try:
         settings = ControllerSettings(generation=args.controller,
                                       polyscope=parse_polyscope(args.polyscope or DEFAULT_POLYSCOPE[args.controller],
                                                                 args.controller),
                                       serial=args.serial, unlock_delay=args.unlock_delay)
     except ValueError as exc:
-        print(f"sim.lab serve: {exc}", file=sys.stderr)
-        return 2
-    stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
+        raise LabStartError(str(exc)) from None
     closers: list[Callable[[], None]] = []
+
+    def close() -> None:
+        for closer in reversed(closers):
+            closer()
+
     try:
         models = build_models(args)
         closers.append(models.close)
@@ -130,24 +133,33 @@ def serve(args: argparse.Namespace) -> int:
         install_controller_commands(controller, dashboard, servers, gripper)
         controller.start()
         models.start()
-        control = ControlServer(host=args.host)
-        closers.append(control.close)
+        closers.append(ControlServer(host=args.host).close)
     except OSError as exc:
-        print(f"sim.lab serve: cannot listen on {args.host}: {exc.strerror or exc} "
-              f"({'a port is taken' if exc.errno == errno.EADDRINUSE else 'see the error'})", file=sys.stderr)
-        for close in reversed(closers):
-            close()
-        return 2
-    log.info("serving %s PolyScope %s on %s", settings.generation, ".".join(map(str, settings.polyscope)), args.host)
-    stop.wait()
-    for close in reversed(closers):
         close()
+        taken = " (the port is taken)" if exc.errno == errno.EADDRINUSE else ""
+        raise LabStartError(f"cannot listen on {args.host}: {exc.strerror or exc}{taken}") from None
+    log.info("serving %s PolyScope %s on %s", settings.generation, ".".join(map(str, settings.polyscope)), args.host)
+    return close
+
+
+def serve(args: argparse.Namespace) -> int:
+    """Serve the emulated cell until SIGTERM/SIGINT."""
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    try:
+        close = open_lab(args)
+    except LabStartError as exc:
+        print(f"sim.lab serve: {exc}", file=sys.stderr)
+        return 2
+    stop.wait()
+    close()
     return 0
 
 
-def run(args: argparse.Namespace, serve_argv: list[str], command: list[str]) -> int:
+def run(args: argparse.Namespace, command: list[str]) -> int:
     """Run `command` against a fresh emulated cell (in a private network namespace where one can be made)."""
-    from sim.lab.control import CONTROL_PORT, request
+    from sim.lab.control import CONTROL_PORT
 
     if not command:
         print("sim.lab run: give the command after --, e.g. python -m sim.lab run --kinematic -- python x.py",
@@ -158,37 +170,35 @@ def run(args: argparse.Namespace, serve_argv: list[str], command: list[str]) -> 
         if prefix is not None:
             os.execvpe(prefix[0], [*prefix, sys.executable, "-m", "sim.lab", "run", *sys.argv[2:]],
                        {**os.environ, netns.NETNS_ENV: "1"})
-        ports = [29999, 30003, 30004, 63352, CONTROL_PORT]
-        taken = netns.taken_port(args.host, ports)
+        host = args.host or "127.0.0.1"
+        taken = netns.taken_port(host, [29999, 30003, 30004, 63352, CONTROL_PORT])
         if taken is not None:
             print(f"sim.lab run: no private network namespace here (unshare -n failed) and port {taken} on "
-                  f"{args.host} is taken; free it or run as root", file=sys.stderr)
+                  f"{host} is taken; free it or run as root", file=sys.stderr)
             return 2
-        print(f"sim.lab run: no private network namespace here; serving on the host's {args.host}", file=sys.stderr)
+        print(f"sim.lab run: no private network namespace here; serving on the host's {host}", file=sys.stderr)
     else:
         netns.loopback_up()
-    emulator = subprocess.Popen([sys.executable, "-m", "sim.lab", "serve", *serve_argv])
+    watchdog = threading.Timer(args.ready_timeout, lambda: (
+        print(f"sim.lab run: the emulator was not up within {args.ready_timeout:g} s", file=sys.stderr),
+        os._exit(2)))
+    watchdog.daemon = True
+    watchdog.start()
     try:
-        deadline = time.monotonic() + args.ready_timeout
-        if not netns.wait_for_port(args.host, CONTROL_PORT, deadline, lambda: emulator.poll() is None):
-            code = emulator.poll()
-            why = f"exited with code {code}" if code is not None else f"was not up within {args.ready_timeout:g} s"
-            print(f"sim.lab run: the emulator {why}", file=sys.stderr)
-            return 2
-        request("ping", host=args.host, timeout=max(1.0, deadline - time.monotonic()))
-        client = subprocess.Popen(command)
-        forward = lambda signum, _frame: client.send_signal(signum)  # noqa: E731
-        signal.signal(signal.SIGTERM, forward)
-        signal.signal(signal.SIGINT, forward)
-        code = client.wait()
-        return code if code >= 0 else 128 - code
+        close = open_lab(args)
+    except LabStartError as exc:
+        print(f"sim.lab run: {exc}", file=sys.stderr)
+        return 2
     finally:
-        emulator.terminate()
-        try:
-            emulator.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            emulator.kill()
-            emulator.wait()
+        watchdog.cancel()
+    try:
+        client = subprocess.Popen(command)
+        signal.signal(signal.SIGTERM, lambda signum, _frame: client.send_signal(signum))
+        signal.signal(signal.SIGINT, lambda signum, _frame: client.send_signal(signum))
+        code = client.wait()
+    finally:
+        close()
+    return code if code >= 0 else 128 - code
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -198,22 +208,12 @@ def main(argv: list[str] | None = None) -> int:
     add_serve_options(commands.add_parser("serve", help="serve the emulated cell until stopped"))
     run_parser = commands.add_parser("run", help="run a command against a fresh emulated cell, then stop it")
     add_serve_options(run_parser)
-    run_parser.add_argument(_RUN_ONLY, type=float, default=60.0,
-                            help="seconds to wait for the emulator's ports (default 60)")
+    run_parser.add_argument("--ready-timeout", type=float, default=60.0,
+                            help="seconds the emulator may take to start (default 60)")
     head, command = (argv[:argv.index("--")], argv[argv.index("--") + 1:]) if "--" in argv else (argv, [])
     args = parser.parse_args(head)
-    if args.command == "serve":
-        return serve(args)
-    serve_argv = []
-    skip = False
-    for token in head[1:]:
-        if skip:
-            skip = False
-        elif token == _RUN_ONLY:
-            skip = True
-        elif not token.startswith(_RUN_ONLY + "="):
-            serve_argv.append(token)
-    return run(args, serve_argv, command)
+    logging.basicConfig(level=args.log_level.upper(), format="sim.lab %(levelname)s %(name)s: %(message)s")
+    return serve(args) if args.command == "serve" else run(args, command)
 
 
 if __name__ == "__main__":

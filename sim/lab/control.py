@@ -13,6 +13,7 @@ registers the controller's own commands:
 | release | | clears either stop (the program stays stopped until a script is uploaded) |
 | drop_link | port (30004), down_for (0 s) | closes every client of that port; refuses new ones for down_for |
 | stop_streaming / start_streaming | | RTDE answers every setup but sends no data packages (F3) / streams again |
+| delay_state | seconds | RTDE packages to clients without output_int_register_0 (ur_rtde's receive interface) lag by `seconds` (0 ends it) |
 | refuse_remote_control | refuse (true) | the dashboard reports local control; uploaded scripts do not start (5.6+) |
 | garbage | port (30004), mode ("values", "bytes", "off") | noise instead of replies: RTDE data packages of random bytes ("values") or a random byte stream ("bytes"); other ports: every reply is noise |
 
@@ -139,6 +140,13 @@ def install_controller_commands(controller: Any, dashboard: Any, servers: dict[i
             return {"streaming": on}
         return handler
 
+    def delay_state(request_: dict) -> dict:
+        seconds = float(request_.get("seconds", 0.0))
+        if not 0 <= seconds <= 2.0:
+            raise ValueError(f"delay_state seconds must be within 0-2 (ur_rtde gives up after 2.5 s), got {seconds}")
+        controller.rtde.state_delay = seconds
+        return {"seconds": seconds}
+
     def refuse_remote_control(request_: dict) -> dict:
         controller.remote_control = not bool(request_.get("refuse", True))
         return {"remote_control": controller.remote_control}
@@ -151,5 +159,6 @@ def install_controller_commands(controller: Any, dashboard: Any, servers: dict[i
     register("drop_link", drop_link)
     register("stop_streaming", set_streaming(False))
     register("start_streaming", set_streaming(True))
+    register("delay_state", delay_state)
     register("refuse_remote_control", refuse_remote_control)
     register("garbage", garbage)

@@ -13,7 +13,8 @@ runs). `Controller` runs that program loop once per controller tick, with the co
 Modelled controller behaviour (guesses where UR does not document it): a protective or emergency stop halts the
 arm and STOPS the program (runtime_state leaves PLAYING) until a script is uploaded again; a script arriving while
 the robot is stopped, or (PolyScope >= 5.6) while remote control is refused, is not started; a runtime error in
-the script (no IK solution, joint limit) stops the program; pose samples in a data package are taken at the start
+the script (no IK solution, joint limit) stops the program; the TCP a program set returns to the flange when the
+program ends; pose samples in a data package are taken at the start
 of the tick, before the program runs, so a `set_tcp` shows in the pose one package after it is acknowledged.
 """
 
@@ -315,6 +316,8 @@ class Controller:
         self.program = None
         self.runtime_state = STOPPED
         self.last_stop = reason
+        self.tcp = [0.0] * 6  # set_tcp lasts as long as its program: the installation's TCP (the flange) is back
+        self.arm.set_tcp(list(self.tcp))
         log.info("program stopped: %s", reason)
 
     def stop_program(self, reason: str) -> None:

@@ -16,6 +16,7 @@ import socket
 import struct
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -144,6 +145,7 @@ class Connection:
     packages: int = 0
     inputs_received: int = 0
     connected_at: float = field(default_factory=time.monotonic)
+    delayed: deque[tuple[float, bytes]] = field(default_factory=deque)
     send_lock: threading.Lock = field(default_factory=threading.Lock)
     closed: bool = False
 
@@ -174,7 +176,9 @@ class RTDEServer(TcpServer):
     `version` is the controller's (major, minor, bugfix, build); `frequency` its RTDE rate (Hz); `write_inputs`
     receives {input name: value} from each client U package. Faults: `streaming = False` answers every setup but
     never sends a data package (F3); `garbage` = "values" sends data packages of the right size filled with random
-    bytes, "bytes" sends a stream of random bytes instead of packages.
+    bytes, "bytes" sends a stream of random bytes instead of packages; `state_delay` (s) holds back the packages
+    of every client whose recipes lack `output_int_register_0` (ur_rtde's receive interface, not its control
+    interface), so that the receive interface lags the control interface.
     """
 
     def __init__(self, host: str, version: tuple[int, int, int, int], frequency: float,
@@ -184,6 +188,7 @@ class RTDEServer(TcpServer):
         self.write_inputs = write_inputs
         self.streaming = True
         self.garbage: str | None = None
+        self.state_delay = 0.0
         self._rng = random.Random(0)
         self._connections: list[Connection] = []
         self._tick = 0
@@ -296,9 +301,15 @@ class RTDEServer(TcpServer):
         self._tick += 1
         if not self.streaming:
             return
+        now = time.monotonic()
         for connection in self.connections():
             if not connection.started:
                 continue
+            delay = self.state_delay if not any("output_int_register_0" in r.names
+                                                for r in connection.outputs.values()) else 0.0
+            while connection.delayed and connection.delayed[0][0] <= now:
+                if connection.send(connection.delayed.popleft()[1]):
+                    connection.packages += 1
             for recipe in connection.outputs.values():
                 if self._tick % recipe.every:
                     continue
@@ -316,5 +327,7 @@ class RTDEServer(TcpServer):
                         else:
                             flat.append(value)
                     data = message(DATA_PACKAGE, recipe.layout.pack(*flat))
-                if connection.send(data):
+                if delay > 0 or connection.delayed:
+                    connection.delayed.append((now + delay, data))
+                elif connection.send(data):
                     connection.packages += 1
