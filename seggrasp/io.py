@@ -1,4 +1,4 @@
-"""Atomic file writes: a result is either fully on disk or not there at all."""
+"""Atomic file writes (a result is either fully on disk or not there at all) and the root of the writable caches."""
 
 from __future__ import annotations
 
@@ -10,6 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+
+def cache_root() -> Path:
+    """The root of every writable cache: `$SEGGRASP_CACHE`, else `~/.cache/seggrasp` (read at each call)."""
+    configured = os.environ.get("SEGGRASP_CACHE")
+    return Path(configured) if configured else Path.home() / ".cache" / "seggrasp"
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from seggrasp.io import atomic_write_json, atomic_write_text
+from seggrasp.io import atomic_write_json, atomic_write_text, cache_root
 from seggrasp.labels import PartLabels, read_labels
 from seggrasp.mesh import load_mesh, mesh_hash
 from seggrasp.object_physics import (
@@ -32,8 +32,6 @@ log = logging.getLogger(__name__)
 
 #: Where the twin lives (the repository's `assets/` folder); override with SEGGRASP_ASSETS_DIR.
 ASSETS_DIR = Path(os.environ.get("SEGGRASP_ASSETS_DIR", Path(__file__).resolve().parents[1] / "assets"))
-#: Default cache for collision models and URDFs of external objects; override with SEGGRASP_CACHE_DIR.
-DEFAULT_CACHE_DIR = Path(os.environ.get("SEGGRASP_CACHE_DIR", Path.home() / ".cache" / "seggrasp" / "objects"))
 #: A graspable object for a 2F-85 (85 mm stroke) on a table: its largest side must lie in this range (metres).
 GRASPABLE_EXTENT_M = (0.02, 1.0)
 
@@ -209,7 +207,7 @@ def load_external_object(
 
     The mesh (metres; its size is checked) is moved into the twin's frame convention (footprint centre at the
     origin, lowest point at z = 0, face order kept) and written with its CoACD collision model (cached by mesh
-    hash and settings) and a one-link URDF into `cache_dir`. Mass comes from `density` times the estimated volume,
+    hash and settings) and a one-link URDF into `cache_dir` (default `$SEGGRASP_CACHE/objects`). Mass comes from `density` times the estimated volume,
     or from `mass` if given (then the density is derived). `labels_path` holds one label per face of the file;
     `prompts` (default: the label file's part names) fixes label order: label k = prompt k.
     Raises ValueError for what cannot be made physical: absurd or ungraspable size, a flat sheet (no volume), no
@@ -229,7 +227,7 @@ def load_external_object(
 
     digest = mesh_hash(mesh)
     name = object_id or (mesh_path.parent.name if mesh_path.stem.lower() in _GENERIC_STEMS else mesh_path.stem)
-    entry = Path(cache_dir if cache_dir is not None else DEFAULT_CACHE_DIR) / f"{name}-{digest[:12]}"
+    entry = Path(cache_dir if cache_dir is not None else cache_root() / "objects") / f"{name}-{digest[:12]}"
     entry.mkdir(parents=True, exist_ok=True)
     local_mesh = entry / "mesh.obj"
     if not local_mesh.is_file():

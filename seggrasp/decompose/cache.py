@@ -10,7 +10,6 @@ and skipped in a read-only one.
 from __future__ import annotations
 
 import logging
-import os
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -18,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from seggrasp.io import atomic_save_npz
+from seggrasp.io import atomic_save_npz, cache_root
 
 logger = logging.getLogger(__name__)
 
@@ -28,8 +27,7 @@ DAMAGED_ENTRY_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipF
 
 def default_cache_dir() -> Path:
     """Writable cache: `$SEGGRASP_CACHE/decompositions` or `~/.cache/seggrasp/decompositions`."""
-    root = os.environ.get("SEGGRASP_CACHE")
-    return (Path(root) if root else Path.home() / ".cache" / "seggrasp") / "decompositions"
+    return cache_root() / "decompositions"
 
 
 def _read_entry(path: Path, n_faces: int) -> tuple[np.ndarray | None, str]:
