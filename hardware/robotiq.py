@@ -341,7 +341,8 @@ class RobotiqGripper:
         self._wait(lambda: self.get("OBJ") != OBJ_MOVING, "finger motion", self.motion_timeout(start, position, speed))
         state = self.state()
         if state.fault:
-            raise GripperError(f"gripper fault {state.fault}: {FAULTS.get(state.fault, 'unknown fault')}")
+            raise GripperError(f"gripper fault {state.fault} in the finger motion to POS {position}: "
+                               f"{FAULTS.get(state.fault, 'unknown fault')}")
         self.guard.finger_opening = self.register_to_width(state.position)
         return GripResult(state.object_detected, self.guard.finger_opening, state.position)
 
