@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import os
 import sqlite3
+from collections.abc import Mapping
 from contextlib import closing
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
 
 import numpy as np
 import pyrealsense2 as rs
@@ -95,12 +95,12 @@ def reimage_depth(depth: np.ndarray, K_color: np.ndarray, imager: DepthImager) -
 
 
 def write_recordings(frames: Mapping[str, Frame], folder: str | Path, *, fps: int = 30,
-                     n_frames: int = FRAMES_PER_SCENE) -> dict[str, Path]:
+                     n_frames: int = FRAMES_PER_SCENE, imager: DepthImager | None = None) -> dict[str, Path]:
     """Write `folder/<serial>.db3` for every camera's twin frame; returns {serial: path}.
 
     Each file is written under a temporary name in `folder` and then renamed over the old one, so a reader sees
     the old recording or the new one, never half of one. `n_frames=1` makes a camera whose stream stops during the
-    client's warm-up (the `camera_stop` fault)."""
+    client's warm-up (the `camera_stop` fault). `imager` replaces the D435's depth imager (`depth_imager`)."""
     if n_frames < 1:
         raise ValueError(f"a recording needs at least one frame set, got n_frames={n_frames}")
     folder = Path(folder)
@@ -110,7 +110,7 @@ def write_recordings(frames: Mapping[str, Frame], folder: str | Path, *, fps: in
         path = folder / f"{serial}.db3"
         partial = folder / f".{serial}.{os.getpid()}.partial.db3"
         try:
-            _record(partial, serial, frame, fps, n_frames)
+            _record(partial, serial, frame, fps, n_frames, imager)
             _check_frames(partial, n_frames)
             os.replace(partial, path)
         finally:
@@ -137,14 +137,14 @@ def _stream(kind: rs.stream, uid: int, fmt: rs.format, bpp: int, K: np.ndarray, 
     return stream
 
 
-def _record(path: Path, serial: str, frame: Frame, fps: int, n_frames: int) -> None:
+def _record(path: Path, serial: str, frame: Frame, fps: int, n_frames: int, imager: DepthImager | None) -> None:
     """Record `n_frames` copies of one frame through a software device. Every pyrealsense2 object lives in this
     function: the recorder writes the file's end when the last of them is gone, i.e. when this returns."""
     rgb = np.ascontiguousarray(frame.rgb, dtype=np.uint8)
     height, width = rgb.shape[:2]
     if rgb.shape != (height, width, 3) or frame.depth.shape != (height, width):
         raise ValueError(f"camera {serial}: colour {rgb.shape} and depth {frame.depth.shape} do not match")
-    imager = depth_imager(width, height)
+    imager = imager or depth_imager(width, height)
     z16 = np.rint(reimage_depth(frame.depth, frame.K, imager) / DEPTH_UNITS).astype(np.uint16)
 
     device = rs.software_device()
