@@ -231,3 +231,23 @@ def test_a_link_dropped_mid_motion_is_named(cell_config, server):
         gripper.close(speed=SLOW)
     gripper.connect()
     assert gripper.is_active()
+
+
+def test_moving_before_activation_is_fault_7(cell_config, server, fingers):
+    gripper = connect(cell_config, server.port)
+    with pytest.raises(GripperError, match="gripper fault 7 .*: the activation bit must be set before moving"):
+        gripper.close(speed=FAST)
+    assert fingers.width() == pytest.approx(cell_config.gripper.stroke)  # nothing moved
+
+
+def test_automatic_release_opens_the_fingers_and_reports_15(cell_config, server, fingers):
+    gripper = active(cell_config, server)
+    gripper.move_to_width(0.080, speed=FAST)
+    gripper.set(ATR=1, ADR=1)
+    assert gripper.get("FLT") == 11  # release in progress, at the slowest speed
+    deadline = time.monotonic() + 2.0
+    while gripper.get("FLT") != 15 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert gripper.get("FLT") == 15 and fingers.width() == pytest.approx(cell_config.gripper.stroke)
+    gripper.clear_fault()
+    assert gripper.state().fault == 0 and gripper.is_active()
