@@ -106,6 +106,11 @@ def _check_samples(T_base_gripper: Sequence[np.ndarray], T_cam_target: Sequence[
                          f"got {len(T_base_gripper)}")
 
 
+def _solver_failed(method: str, samples: int, exc: cv2.error) -> ValueError:
+    return ValueError(f"the {method} hand-eye solver failed on these {samples} samples (vary the rotations between "
+                      f"poses): {exc.err or exc}")
+
+
 def calibrate_eye_to_hand(T_base_gripper: Sequence[np.ndarray], T_cam_target: Sequence[np.ndarray],
                           method: str = "shah") -> tuple[np.ndarray, np.ndarray]:
     """Fixed camera, target on the gripper: returns (T_base_cam, T_gripper_target)."""
@@ -114,8 +119,11 @@ def calibrate_eye_to_hand(T_base_gripper: Sequence[np.ndarray], T_cam_target: Se
         raise ValueError(f"unknown eye-to-hand method {method!r}; choose from {sorted(EYE_TO_HAND_METHODS)}")
     R_target, t_target = _split(T_cam_target, "T_cam_target")
     R_gripper, t_gripper = _split(T_base_gripper, "T_base_gripper")
-    R_target_gripper, t_target_gripper, R_cam_base, t_cam_base = cv2.calibrateRobotWorldHandEye(
-        R_target, t_target, R_gripper, t_gripper, method=EYE_TO_HAND_METHODS[method])
+    try:
+        R_target_gripper, t_target_gripper, R_cam_base, t_cam_base = cv2.calibrateRobotWorldHandEye(
+            R_target, t_target, R_gripper, t_gripper, method=EYE_TO_HAND_METHODS[method])
+    except cv2.error as exc:
+        raise _solver_failed(method, len(R_target), exc) from None
     T_base_cam = np.linalg.inv(_join(R_cam_base, t_cam_base))
     T_gripper_target = np.linalg.inv(_join(R_target_gripper, t_target_gripper))
     return T_base_cam, T_gripper_target
@@ -129,7 +137,10 @@ def calibrate_eye_in_hand(T_base_gripper: Sequence[np.ndarray], T_cam_target: Se
         raise ValueError(f"unknown eye-in-hand method {method!r}; choose from {sorted(EYE_IN_HAND_METHODS)}")
     R_gripper, t_gripper = _split(T_base_gripper, "T_base_gripper")
     R_target, t_target = _split(T_cam_target, "T_cam_target")
-    R, t = cv2.calibrateHandEye(R_gripper, t_gripper, R_target, t_target, method=EYE_IN_HAND_METHODS[method])
+    try:
+        R, t = cv2.calibrateHandEye(R_gripper, t_gripper, R_target, t_target, method=EYE_IN_HAND_METHODS[method])
+    except cv2.error as exc:
+        raise _solver_failed(method, len(R_target), exc) from None
     return _join(R, t)
 
 
@@ -152,6 +163,10 @@ def eye_in_hand_residual(T_gripper_cam: np.ndarray, T_base_gripper: Sequence[np.
 
 
 # ------------------------------------------------------------------------------------------------ target detection
+#: Most inner corners a side of a printed calibration board (a camera resolves a few dozen at most).
+MAX_BOARD_CORNERS = 50
+
+
 @dataclass(frozen=True)
 class Checkerboard:
     """A printed checkerboard: inner-corner counts (columns, rows) and square size in metres."""
@@ -161,9 +176,10 @@ class Checkerboard:
     square: float
 
     def __post_init__(self) -> None:
-        if self.columns < 3 or self.rows < 3 or not 0 < self.square < 1:  # metres; also refuses NaN
-            raise ValueError(f"checkerboard needs >= 3x3 inner corners and a square size in metres (0-1), "
-                             f"got {self}")
+        if not (3 <= self.columns <= MAX_BOARD_CORNERS and 3 <= self.rows <= MAX_BOARD_CORNERS
+                and 0 < self.square < 1):  # metres; also refuses NaN
+            raise ValueError(f"checkerboard needs 3-{MAX_BOARD_CORNERS} inner corners a side and a square size in "
+                             f"metres (0-1), got {self.columns}x{self.rows} corners of {self.square:g} m")
         if (self.columns + self.rows) % 2 == 0:
             raise ValueError(f"checkerboard {self.columns}x{self.rows} inner corners looks the same turned by 180 "
                              "degrees, so its pose is ambiguous; use one even and one odd count (e.g. 7x6)")

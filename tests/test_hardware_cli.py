@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import json
+import shutil
 
+import numpy as np
 import pytest
+import trimesh
 
-from fakes_hardware import EXAMPLE_CONFIG, example_config, write_config
+from fakes_hardware import EXAMPLE_CONFIG, example_config, synthetic_frames, write_config
 from hardware.__main__ import main
+from hardware.config import load_config
 
 
 def test_check_prints_a_summary(capsys):
@@ -94,9 +98,6 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--board", "7x5", "--dry-run"]) == 1
     assert "ambiguous" in capsys.readouterr().err
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
-                 str(tmp_path / "poses.yaml"), "--square", "0.03", "--dry-run"]) == 1
-    assert "give --out" in capsys.readouterr().err
-    assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
                  str(tmp_path / "poses.yaml"), "--square", "0.03", "--board", "7by6", "--dry-run"]) == 1
     assert "--board must be COLUMNSxROWS" in capsys.readouterr().err
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--poses",
@@ -126,3 +127,76 @@ def test_check_refuses_a_home_pose_outside_the_limits(tmp_path, capsys):
     assert main(["check", str(write_config(tmp_path / "cell.yaml", data))]) == 1
     assert "the home pose (robot.home_joints, gripper fully open): gripper origin x = 0.109 m is outside" in \
         capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------------------------- issue 34, the CLI
+@pytest.mark.parametrize("at", [["0.52", "-.1", "0.05"], ["0.52", "-1e-1", "0.05"], ["5.2e-1", "-0.1", "5e-2"]])
+def test_grasp_reads_negative_numbers_in_any_notation(capsys, at):
+    assert main(["grasp", str(EXAMPLE_CONFIG), "--at", *at, "--width", "0.05", "--dry-run"]) == 0
+    assert json.loads(capsys.readouterr().out)["reachable"] is True
+
+
+@pytest.mark.parametrize("args, problem", [
+    (["--at", "-1e308", "0", "0"], "--at [-1e+308, 0.0, 0.0] is 1e+308 m from the UR5's shoulder, beyond its reach "
+                                   "(1.005 m with the tool)"),
+    (["--at", "0.52", "-inf", "0.05"], "--at and --yaw must be finite numbers"),
+    (["--at", "0.52", "0.1", "0.05", "--yaw", "-1e9"], "--yaw must be within [-2 pi, 2 pi] rad, got -1e+09"),
+])
+def test_grasp_bounds_its_numbers_in_one_sentence(capsys, args, problem):
+    # `--at -1e308 ...` used to be read as an option: "argument --at: expected 3 arguments"
+    assert main(["grasp", str(EXAMPLE_CONFIG), *args, "--width", "0.05", "--dry-run"]) == 1
+    err = capsys.readouterr().err
+    assert err == f"error: {problem}\n" or (err.startswith("error: ") and problem in err), err
+    assert err.count("\n") == 1
+
+
+def test_calibrate_on_the_example_config_needs_no_out(tmp_path, capsys):
+    # README: `python -m hardware calibrate cell.yaml --serial ... --poses poses.yaml --square 0.03` on a copy of the
+    # example config used to fail with "give --out"; the result now goes beside the config, and the run says so
+    config = tmp_path / "cell.yaml"
+    shutil.copy(EXAMPLE_CONFIG, config)
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\n")
+    assert main(["calibrate", str(config), "--serial", "012345678901", "--poses", str(tmp_path / "poses.yaml"),
+                 "--square", "0.03", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert f"the result would go to {tmp_path / 'calibration.yaml'}" in out
+    assert "does not read it yet: make its calibration section `file: calibration.yaml`" in out
+    assert not (tmp_path / "calibration.yaml").exists()
+
+
+def test_calibrate_refuses_oversized_boards_and_tours(tmp_path, capsys):
+    (tmp_path / "poses.yaml").write_text("poses:\n" + "  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\n" * 201)
+    args = ["calibrate", str(EXAMPLE_CONFIG), "--serial", "012345678901", "--square", "0.03", "--dry-run",
+            "--out", str(tmp_path / "c.yaml")]
+    assert main([*args, "--poses", str(tmp_path / "poses.yaml")]) == 1
+    assert "201 poses are more than the 200" in capsys.readouterr().err
+    (tmp_path / "poses.yaml").write_text("poses:\n  - {xyz: [0.5, 0.1, 0.3], rpy: [3.14159, 0, 0]}\n")
+    assert main([*args, "--poses", str(tmp_path / "poses.yaml"), "--board", "100000x100001"]) == 1
+    assert "3-50 inner corners a side" in capsys.readouterr().err
+
+
+def test_a_dry_run_check_without_cameras_names_them_in_one_sentence(capsys):
+    assert main(["check", str(EXAMPLE_CONFIG), "--connect", "--dry-run"]) == 1
+    err = capsys.readouterr().err.splitlines()[-1]
+    assert err.startswith("error: the check failed: ") and "012345678901" in err and "012345678902" in err
+    assert "(a dry run still uses the cameras)" in err
+
+
+def test_a_dry_run_check_plays_recorded_cameras(tmp_path, capsys):
+    from sim.lab.cameras import write_recordings
+
+    config = load_config(EXAMPLE_CONFIG)
+    K = np.array([[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]])
+    box = trimesh.creation.box([0.06, 0.06, 0.1])
+    box.apply_translation([0.5, 0.0, 0.05])
+    frames = synthetic_frames(box, [c.T_world_cam() for c in config.cameras], K, (120, 160))
+    paths = write_recordings({c.serial: frame for c, frame in zip(config.cameras, frames)}, tmp_path / "rec",
+                             n_frames=60)  # spares: playback drops frame sets on a loaded machine
+    data = example_config()
+    for camera in data["cameras"]:
+        camera.update(width=160, height=120, recording=str(paths[camera["serial"]]))
+    path = write_config(tmp_path / "cell.yaml", data)
+    assert main(["check", str(path), "--connect", "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert f"(plays {paths['012345678901']})" in out
+    assert "camera front: 160x120" in out and "camera side: 160x120" in out
