@@ -43,7 +43,7 @@ def server(fingers):
 def channel():
     """A real control channel (sim/lab/control.py) on a free port: send(cmd, **arguments) -> its reply."""
     server = control.ControlServer(port=0)
-    yield lambda cmd, **arguments: control.request(cmd, port=server.port, timeout=2.0, **arguments)
+    yield lambda cmd, **arguments: control.request(cmd, channel=("127.0.0.1", server.port), timeout=2.0, **arguments)
     server.close()
 
 
