@@ -1,4 +1,4 @@
-"""Command line for the real cell: `python -m hardware check|calibrate|grasp CONFIG [...] [--dry-run]`.
+"""Command line for the real cell: `python -m hardware check|calibrate|grasp|replay CONFIG [...] [--dry-run]`.
 
 - `check`: validate the config and print a summary; with `--connect`, also connect, read the arm and gripper
   state and capture one frame per camera; a gripper fault, a camera that does not start or a controller that does
@@ -9,6 +9,9 @@
   (eye-in-hand -> `T_gripper_cam`). The result is merged into the calibration file: `--out`, else the config's
   `calibration.file`, else `calibration.yaml` beside the config (which the config then has to name).
 - `grasp`: one top-down grasp at a point (reset, execute, print the outcome) - the first grasp on a new cell.
+- `replay`: capture one frame per camera without the robot (a dry-run cell: nothing connects to the arm or the
+  gripper) and print what perception makes of it; with cameras that name a `recording`, a recorded scene is
+  replayed offline through the same pyrealsense2 pipeline, rs.align and perception as on the cell.
 
 Every error is one line `error: ...` and exit code 1 (2 for a malformed command line, 130 when interrupted).
 """
@@ -82,6 +85,11 @@ def _parser() -> argparse.ArgumentParser:
                        help="rotation of the closing direction about z (rad, within +-2 pi)")
     grasp.add_argument("--width", type=float, required=True, help="object width between the pads (metres)")
     grasp.add_argument("--dry-run", action="store_true", help="plan and log the motions only")
+
+    replay = commands.add_parser("replay", help="capture every camera (recordings or live) and perceive the object")
+    replay.add_argument("config", type=Path)
+    replay.add_argument("--mesh", type=Path, help="also write the perceived object mesh (.ply, .obj or .stl)")
+    replay.add_argument("--json", action="store_true", help="print one JSON object instead of lines")
     return parser
 
 
@@ -111,6 +119,42 @@ def _check(args: argparse.Namespace) -> int:
         cell.close()
     if problems:
         raise HardwareError(f"the check failed: {'; '.join(problems)}")
+    return 0
+
+
+def _replay(args: argparse.Namespace) -> int:
+    """Capture every camera of a dry-run cell and print each frame's depth coverage and the perceived object."""
+    from seggrasp.perception import perceive_object  # perception is only needed here
+
+    cell = RealCell.from_config(args.config, dry_run=True)
+    try:
+        frames = cell.capture()
+        workspace = cell.workspace
+    finally:
+        cell.close()
+    cameras = []
+    for camera, frame in zip(cell.config.cameras, frames):
+        valid = frame.depth > 0
+        cameras.append({"name": frame.name, "serial": camera.serial,
+                        "recording": str(camera.recording) if camera.recording else None,
+                        "size": [frame.rgb.shape[1], frame.rgb.shape[0]],
+                        "depth_fraction": round(float(valid.mean()), 4),
+                        "median_depth": round(float(np.median(frame.depth[valid])), 4) if valid.any() else 0.0})
+    mesh = perceive_object(frames, workspace)
+    found = {"bounds": np.round(mesh.bounds, 4).tolist(), "extents": np.round(mesh.extents, 4).tolist(),
+             "faces": int(len(mesh.faces)), "volume": round(float(mesh.volume), 7) if mesh.is_watertight else None}
+    if args.mesh:
+        mesh.export(args.mesh)
+    if args.json:
+        print(json.dumps({"cameras": cameras, "object": found}))
+        return 0
+    for entry in cameras:
+        plays = f", plays {entry['recording']}" if entry["recording"] else ""
+        print(f"camera {entry['name']} ({entry['serial']}{plays}): {entry['size'][0]}x{entry['size'][1]}, "
+              f"{entry['depth_fraction']:.0%} depth, median {entry['median_depth']:.3f} m")
+    volume = f", volume {found['volume'] * 1e6:.1f} cm^3" if found["volume"] is not None else ""
+    print(f"object: bounds {found['bounds']} m, extents {found['extents']} m, {found['faces']} faces{volume}"
+          + (f"; mesh written to {args.mesh}" if args.mesh else ""))
     return 0
 
 
@@ -266,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        return {"check": _check, "calibrate": _calibrate, "grasp": _grasp}[args.command](args)
+        return {"check": _check, "calibrate": _calibrate, "grasp": _grasp, "replay": _replay}[args.command](args)
     except (ConfigError, ValueError, HardwareError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
