@@ -116,13 +116,13 @@ def read_yaml(path: Path, what: str, error: type[ValueError] = ValueError) -> An
     """Parse a YAML file strictly (see the module docstring); a missing, unreadable or oversized file or bad YAML
     raises `error` with one sentence naming `what`, the path and, where there is one, the line."""
     path = Path(path)
-    if not path.exists():
-        raise error(f"{what} {path} not found")
-    if path.is_dir():
-        raise error(f"{what} {path} is a folder, not a file")
-    if not path.is_file():
-        raise error(f"{what} {path} is not a regular file (a device, FIFO or socket)")
     try:
+        if not path.exists():
+            raise error(f"{what} {path} not found")
+        if path.is_dir():
+            raise error(f"{what} {path} is a folder, not a file")
+        if not path.is_file():
+            raise error(f"{what} {path} is not a regular file (a device, FIFO or socket)")
         with path.open("rb") as stream:
             raw = stream.read(MAX_YAML_BYTES + 1)
     except OSError as exc:
