@@ -327,7 +327,8 @@ def _parse_limits(r: FieldReader, data: dict) -> Limits:
     )
     for name, value, cap, unit, source in (
             ("max_tool_speed", limits.max_tool_speed, UR_TOOL_SPEED_MAX, "m/s", "the UR5/UR5e's datasheet tool speed"),
-            ("max_joint_speed", limits.max_joint_speed, UR_JOINT_SPEED_MAX, "rad/s", "the UR5/UR5e's datasheet joint speed"),
+            ("max_joint_speed", limits.max_joint_speed, UR_JOINT_SPEED_MAX, "rad/s",
+             "the UR5/UR5e's datasheet joint speed"),
             ("max_tool_acceleration", limits.max_tool_acceleration, UR_TOOL_ACCELERATION_MAX, "m/s^2",
              "the largest tool acceleration the UR controller interface accepts"),
             ("max_joint_acceleration", limits.max_joint_acceleration, UR_JOINT_ACCELERATION_MAX, "rad/s^2",
