@@ -39,7 +39,7 @@ from hardware.errors import HardwareError
 from hardware.fields import FieldReader, read_yaml
 from hardware.kinematics import ARM_MODELS, forward_kinematics
 from hardware.realsense import RealSenseCamera
-from hardware.robotiq import FAULTS, STA_ACTIVE
+from hardware.robotiq import FAULTS, GripperState
 
 #: Most poses a calibration tour may list (hand-eye calibration wants 10-30).
 MAX_CALIBRATION_POSES = 200
@@ -158,13 +158,11 @@ def _replay(args: argparse.Namespace) -> int:
     return 0
 
 
-def _gripper_problems(state) -> list[str]:
-    """What is wrong with a connected gripper's state (a fault, not activated), as parts of one sentence."""
+def _gripper_problems(state: GripperState) -> list[str]:
+    """A fault the connected (and, by `RealCell.from_config`, activated) gripper reports, as a sentence part."""
     if state.fault:
         return [f"the gripper reports fault {state.fault} ({FAULTS.get(state.fault, 'unknown fault')}); clear it "
                 "(RobotiqGripper.clear_fault() resets and activates it, the fingers move) and check again"]
-    if not state.activated or state.status != STA_ACTIVE:
-        return [f"the gripper is not active (ACT {int(state.activated)}, STA {state.status})"]
     return []
 
 
