@@ -26,6 +26,8 @@ from scipy.spatial.transform import Rotation
 
 #: The largest YAML file read (bytes): a cell config is a few kB; anything this big is not one.
 MAX_YAML_BYTES = 1_000_000
+#: The farthest (m, per axis) a transform of the cell may reach: a tool offset, a camera, a calibration pose.
+MAX_TRANSLATION = 10.0
 
 
 class ConfigError(ValueError):
@@ -300,22 +302,28 @@ class FieldReader:
         return np.asarray(value, dtype=np.float64)
 
     def transform(self, value: Any, name: str) -> np.ndarray:
-        """A rigid transform written as a 4x4 matrix or as {xyz: [..], rpy: [..]} (metres, radians, extrinsic XYZ)."""
+        """A rigid transform written as a 4x4 matrix or as {xyz: [..], rpy: [..]} (metres, radians, extrinsic XYZ);
+        the translation within `MAX_TRANSLATION` and the angles within a turn either way."""
         if isinstance(value, dict):
             self.check_keys(value, f"{name}.", {"xyz", "rpy"})
+            rpy = self.vector(value.get("rpy", [0.0, 0.0, 0.0]), f"{name}.rpy", 3)
+            if np.any(np.abs(rpy) > 2 * np.pi):
+                raise self.error(f"{name}.rpy", f"angles must be radians within [-2 pi, 2 pi], got {rpy.tolist()}")
             T = np.eye(4)
             T[:3, 3] = self.vector(value.get("xyz", [0.0, 0.0, 0.0]), f"{name}.xyz", 3)
-            T[:3, :3] = Rotation.from_euler("xyz", self.vector(value.get("rpy", [0.0, 0.0, 0.0]), f"{name}.rpy", 3)
-                                            ).as_matrix()
-            return T
-        if not (isinstance(value, (list, tuple)) and len(value) == 4 and all(
+            T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+        elif not (isinstance(value, (list, tuple)) and len(value) == 4 and all(
                 isinstance(row, (list, tuple)) and len(row) == 4 and all(map(_is_number, row)) for row in value)):
             raise self.error(name, f"must be a 4x4 matrix of finite numbers or {{xyz: [...], rpy: [...]}}, got "
                              f"{shown(value)}")
-        T = np.asarray(value, dtype=np.float64)
-        if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
-            raise self.error(name, "last row must be [0, 0, 0, 1]")
-        R = T[:3, :3]
-        if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0.999:
-            raise self.error(name, "rotation part is not a proper rotation matrix (orthonormal, det +1)")
+        else:
+            T = np.asarray(value, dtype=np.float64)
+            if not np.allclose(T[3], [0, 0, 0, 1], atol=1e-9):
+                raise self.error(name, "last row must be [0, 0, 0, 1]")
+            R = T[:3, :3]
+            if not np.allclose(R @ R.T, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0.999:
+                raise self.error(name, "rotation part is not a proper rotation matrix (orthonormal, det +1)")
+        if np.any(np.abs(T[:3, 3]) > MAX_TRANSLATION):
+            raise self.error(name, f"translation {shown(T[:3, 3].tolist())} m reaches beyond {MAX_TRANSLATION:g} m: "
+                             "metres are expected, and a cell is a few metres across")
         return T

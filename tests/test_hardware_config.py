@@ -227,6 +227,10 @@ def edited_example(tmp_path, old: str, new: str) -> tuple:
     ("  joint_speed:", "  joint_speed: 0.01", "motion.joint_speed", "half a joint turn at 0.01 rad/s takes 314 s"),
     ("  home_joints:", "  home_joints: [1" + "0" * 400 + ", 0, 0, 0, 0, 0]", "robot.home_joints",
      "must be a list of 6 finite numbers"),
+    ("  tcp_offset:", "  tcp_offset: {xyz: [0.0, 0.0, 0.155], rpy: [1.0e+308, 0.0, 0.0]}", "robot.tcp_offset.rpy",
+     "angles must be radians within [-2 pi, 2 pi]"),
+    ("  tcp_offset:", "  tcp_offset: {xyz: [0.0, 0.0, 155.0]}", "robot.tcp_offset",
+     "translation [0.0, 0.0, 155.0] m reaches beyond 10 m: metres are expected"),
 ], ids=lambda value: value.strip()[:40] if isinstance(value, str) else None)
 def test_values_beyond_the_ur5_and_2f85_are_refused_naming_file_and_line(tmp_path, old, new, field, problem):
     path, line = edited_example(tmp_path, old, new)
