@@ -219,7 +219,8 @@ def _calibrate(args: argparse.Namespace) -> int:
     config = load_config(args.config, require_calibration=False)
     camera_config = next((c for c in config.cameras if c.serial == args.serial), None)
     if camera_config is None:
-        raise ValueError(f"camera {args.serial} is not in {args.config}")
+        raise ValueError(f"camera {args.serial!r} is not in {args.config} (its serials: "
+                         f"{', '.join(c.serial for c in config.cameras)})")
     wrist = camera_config.mount == "wrist"
     method = args.method or ("park" if wrist else "shah")
     if method not in (EYE_IN_HAND_METHODS if wrist else EYE_TO_HAND_METHODS):
@@ -277,8 +278,9 @@ def _grasp(args: argparse.Namespace) -> int:
         raise ValueError(f"--at and --yaw must be finite numbers, got --at {args.at} --yaw {args.yaw}")
     if abs(args.yaw) > 2 * math.pi:
         raise ValueError(f"--yaw must be within [-2 pi, 2 pi] rad, got {args.yaw:g}")
-    if not (math.isfinite(args.width) and args.width >= 0):
-        raise ValueError(f"--width must be a non-negative number of metres, got {args.width}")
+    if not (math.isfinite(args.width) and 0 <= args.width <= 1):
+        raise ValueError(f"--width must be the object's width in metres (0-1; the 2F-85 opens 0.085), got "
+                         f"{args.width:g}")
     config = load_config(args.config)
     arm = ARM_MODELS[config.robot.model]
     reach = arm.reach + float(np.linalg.norm(config.robot.T_flange_gripper[:3, 3]))

@@ -42,7 +42,7 @@ def test_refused_grasp_is_reported_and_exits_non_zero(capsys):
 @pytest.mark.parametrize("args, problem", [
     (["--at", "nan", "0.1", "0.05", "--width", "0.05"], "--at and --yaw must be finite"),
     (["--at", "0.52", "0.1", "0.05", "--yaw", "inf", "--width", "0.05"], "--at and --yaw must be finite"),
-    (["--at", "0.52", "0.1", "0.05", "--width", "-0.01"], "--width must be a non-negative number"),
+    (["--at", "0.52", "0.1", "0.05", "--width", "-0.01"], "--width must be the object's width in metres"),
 ])
 def test_grasp_arguments_out_of_range_exit_non_zero(capsys, args, problem):
     assert main(["grasp", str(EXAMPLE_CONFIG), *args, "--dry-run"]) == 1
@@ -105,7 +105,7 @@ def test_bad_input_exits_non_zero_with_a_message(tmp_path, capsys):
     assert "poses file" in capsys.readouterr().err
     assert main(["calibrate", str(EXAMPLE_CONFIG), "--serial", "999", "--poses", str(tmp_path / "poses.yaml"),
                  "--square", "0.03", "--out", str(tmp_path / "c.yaml"), "--dry-run"]) == 1
-    assert "camera 999 is not in" in capsys.readouterr().err
+    assert "camera '999' is not in" in capsys.readouterr().err
 
 
 def test_calibration_dry_run_checks_the_tour(tmp_path, capsys):
@@ -141,10 +141,13 @@ def test_grasp_reads_negative_numbers_in_any_notation(capsys, at):
                                    "(1.005 m with the tool)"),
     (["--at", "0.52", "-inf", "0.05"], "--at and --yaw must be finite numbers"),
     (["--at", "0.52", "0.1", "0.05", "--yaw", "-1e9"], "--yaw must be within [-2 pi, 2 pi] rad, got -1e+09"),
+    (["--at", "0.52", "0.1", "0.05", "--width", "1e308"], "--width must be the object's width in metres (0-1"),
 ])
 def test_grasp_bounds_its_numbers_in_one_sentence(capsys, args, problem):
     # `--at -1e308 ...` used to be read as an option: "argument --at: expected 3 arguments"
-    assert main(["grasp", str(EXAMPLE_CONFIG), *args, "--width", "0.05", "--dry-run"]) == 1
+    if "--width" not in args:
+        args = [*args, "--width", "0.05"]
+    assert main(["grasp", str(EXAMPLE_CONFIG), *args, "--dry-run"]) == 1
     err = capsys.readouterr().err
     assert err == f"error: {problem}\n" or (err.startswith("error: ") and problem in err), err
     assert err.count("\n") == 1
