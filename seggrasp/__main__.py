@@ -25,7 +25,7 @@ from seggrasp.decompose import MAX_COACD_FACES, RUN_TIMEOUT_S, SweepTimeout
 from seggrasp.detect import DETECTOR_NAMES, make_detector
 from seggrasp.fusion import REFINE_MODES
 from seggrasp.io import atomic_save_npy, atomic_write_json
-from seggrasp.labels import PartLabels, read_labels, write_labels
+from seggrasp.labels import PartLabels, find_prompt, read_labels, write_labels
 from seggrasp.mesh import PreparedMesh, load_mesh
 from seggrasp.render import MAX_IMAGE_SIZE, MAX_RIG_PIXELS, MAX_VIEWS, MIN_IMAGE_SIZE, check_rig
 
@@ -103,14 +103,15 @@ def _read_ground_truth(path: Path, prepared: PreparedMesh, prompts: list[str]) -
 
 
 def _face_areas_in_file_order(prepared: PreparedMesh) -> np.ndarray:
-    """Area of every input face; faces dropped as degenerate have (numerically) none."""
-    areas = np.zeros(prepared.n_source_faces)
-    areas[prepared.source_face] = prepared.mesh.area_faces
+    """Area of every input face (a duplicate face has its original's); faces dropped as degenerate have none."""
+    areas = prepared.to_source(np.asarray(prepared.mesh.area_faces, dtype=np.float64)).copy()
+    areas[prepared.dropped_faces] = 0.0
     return areas
 
 
 def run_segment(args: argparse.Namespace) -> dict:
     """Run the `segment` command; returns the summary it writes to DIR/summary.json."""
+    from seggrasp.fusion import found_prompts
     from seggrasp.labels import check_prompts
     from seggrasp.segment import SegmentationConfig, segment
     from seggrasp.viz import save_coloured_mesh, save_contact_sheet, save_label_preview, save_partition_previews
@@ -165,9 +166,12 @@ def run_segment(args: argparse.Namespace) -> dict:
         "n_faces": prepared.n_source_faces,
         "faces_per_prompt": {p: int((result.labels == k).sum()) for k, p in enumerate(prompts)},
         "unknown_faces": int((result.labels == -1).sum()),
+        "not_found": [p for p, found in zip(prompts, found_prompts(result.coarse_scores)) if not found],
         "n_partitions": len(result.partitions),
         "timings_s": {stage: round(seconds, 4) for stage, seconds in result.timings.items()},
     }
+    if summary["not_found"]:
+        log.warning("not found (no box of the detector in any view, so no faces): %s", ", ".join(summary["not_found"]))
     if ground_truth is not None:
         summary["evaluation"] = _evaluate(result, ground_truth, prompts, _face_areas_in_file_order(prepared))
     atomic_write_json(out / "summary.json", summary)
@@ -175,18 +179,24 @@ def run_segment(args: argparse.Namespace) -> dict:
 
 
 def _evaluate(result, ground_truth: PartLabels, prompts: list[str], face_areas: np.ndarray) -> dict:
-    """Area-weighted and face-count IoU per prompt whose name is a ground-truth part, for the final and coarse labels."""
+    """Area-weighted and face-count IoU per prompt whose name is a ground-truth part and their mean (mIoU), for the
+    final and coarse labels; faces labelled with a prompt that names no ground-truth part count as wrong in the IoU
+    of the part they belong to and are reported as `absent_prompt_faces`."""
     from seggrasp.metrics import part_ious
 
     truth = ground_truth.remap_to(prompts)
+    present = [find_prompt(ground_truth.parts, p) is not None for p in prompts]
     evaluation = {}
     for name, labels in (("final", result.labels), ("coarse", result.coarse_labels)):
         for weighting, areas in (("area", face_areas), ("faces", None)):
             ious = part_ious(labels, truth, len(prompts), areas)
+            scored = {p: v for p, v, known in zip(prompts, ious, present) if known}
             evaluation[f"{name}_{weighting}"] = {
-                "part_iou": {p: None if np.isnan(v) else round(float(v), 4) for p, v in zip(prompts, ious)},
-                "miou": round(float(np.nanmean(ious)), 4),
+                "part_iou": {p: None if np.isnan(v) else round(float(v), 4) for p, v in scored.items()},
+                "miou": round(float(np.nanmean(list(scored.values()))), 4),
             }
+        absent = [k for k, known in enumerate(present) if not known]
+        evaluation[f"{name}_absent_prompt_faces"] = int(np.isin(labels, absent).sum())
     return evaluation
 
 
@@ -203,6 +213,11 @@ def _print_summary(summary: dict, out: Path) -> None:
             scores = evaluation[key]
             parts = ", ".join(f"{p} {v:.3f}" for p, v in scores["part_iou"].items() if v is not None)
             print(f"  IoU ({what}): {parts}; mIoU {scores['miou']:.3f}")
+        if evaluation["final_absent_prompt_faces"]:
+            print(f"  faces labelled with prompts that name no ground-truth part: "
+                  f"{evaluation['final_absent_prompt_faces']}")
+    if summary["not_found"]:
+        print("  not found (no detector box in any view): " + ", ".join(summary["not_found"]))
     print(f"  wrote {out}/labels.json, scores.npy, segmented.ply, labels.png, views.png"
           + (", partitions.png" if summary["n_partitions"] else "") + ", summary.json")
 

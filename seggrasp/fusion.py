@@ -72,6 +72,17 @@ GeoFusion, per prompt and level).
 Measured against GeoFusion, hard and ungated soft anchoring on the twin (with its multi-part categories) and on the
 labelled YCB scans over twenty detector/camera seeds: `python bench/bench_seg.py --quality --seeds 20 --meshes twin` and
 `--meshes ycb` (results in docs/results/seg-quality-*.md).
+
+Absent prompts (`found_prompts`, `anchoring_levels`). A prompt is found when some box of it covered a face (its
+column of S has a positive entry). A prompt that is not found keeps a zero column through every refinement mode, so
+it gets no face, and it takes no part in anchoring, whose levels are chosen by the number of found prompts: prompts
+the detector never boxes change no label (`python -m seggrasp segment` reports them as not found). Anchoring needs a
+level with a part per found prompt; when no decomposition of the sweep has that many parts (more prompts than the
+object has convex parts, such as a long list of candidate part names), anchoring is skipped and the GeoFusion labels
+stand. A prompt that is boxed although it names no part of the object (a hallucinated whole-object or stray box)
+cannot be told from a weakly seen real part by its votes, and takes part like one: each such prompt anchored to a
+part takes that part's faces where its share is close, so a handful of them costs the present parts some IoU; with
+every prompt naming a part of the object nothing changes.
 """
 
 from __future__ import annotations
@@ -216,6 +227,24 @@ def coarsest_with_parts(partitions: Sequence[Partition], n_prompts: int) -> Part
     return enough[-1] if enough else by_fineness[0]
 
 
+def found_prompts(scores: np.ndarray) -> np.ndarray:
+    """(P,) bool: the prompts with evidence, some positive score in the (F, P) `scores` (module docstring, "Absent
+    prompts"); the others are not found."""
+    scores = np.asarray(scores, dtype=np.float64)
+    if scores.ndim != 2:
+        raise ValueError(f"scores must be an (F, P) matrix, got shape {scores.shape}")
+    return (scores > 0).any(axis=0)
+
+
+def anchoring_levels(partitions: Sequence[Partition], scores: np.ndarray, n_levels: int) -> list[Partition]:
+    """The `n_levels` coarsest partitions with at least one part per found prompt of `scores` (`found_prompts`),
+    coarsest first; none when no partition has that many parts or no prompt is found (then anchoring is skipped)."""
+    n_found = int(found_prompts(scores).sum())
+    if n_found == 0:
+        return []
+    return sorted((p for p in partitions if p.n_parts >= n_found), key=lambda p: -p.threshold)[:n_levels]
+
+
 def assign_parts_to_prompts(part_scores: np.ndarray) -> np.ndarray:
     """(P,) the part chosen for each prompt from (K, P) part scores, -1 for a prompt no part scores for.
 
@@ -239,16 +268,20 @@ def assign_parts_to_prompts(part_scores: np.ndarray) -> np.ndarray:
 def anchor_prompts(
     labels: np.ndarray, scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray
 ) -> np.ndarray:
-    """Labels in which every prompt owns at least one convex part (module docstring, "Prompt anchoring").
+    """Labels in which every found prompt owns at least one convex part (module docstring, "Prompt anchoring" and
+    "Absent prompts").
 
-    On the coarsest partition with a part per prompt, the parts `assign_parts_to_prompts` gives the prompts (from
-    each part's distribution of area-weighted mean `scores` over the prompts) take those prompts; every other face
-    keeps its label from `labels`.
+    On the coarsest partition with a part per found prompt (`anchoring_levels`; none: `labels` unchanged), the
+    parts `assign_parts_to_prompts` gives the prompts (from each part's distribution of area-weighted mean `scores`
+    over the prompts) take those prompts; every other face keeps its label from `labels`.
     """
     scores = np.asarray(scores, dtype=np.float64)
     anchored = np.asarray(labels, dtype=np.int64).copy()
     _check_inputs(scores, partitions, np.asarray(face_areas, dtype=np.float64))
-    partition = coarsest_with_parts(partitions, scores.shape[1])
+    levels = anchoring_levels(partitions, scores, 1)
+    if not levels:
+        return anchored
+    (partition,) = levels
     means = part_mean_scores(scores, partition.part_of_face, face_areas)
     distributions = means / np.maximum(means.sum(axis=1, keepdims=True), 1e-18)
     for prompt, part in enumerate(assign_parts_to_prompts(distributions)):
@@ -302,18 +335,17 @@ def anchor_priors(
     scores: np.ndarray, partitions: Sequence[Partition], face_areas: np.ndarray,
     prior: float = ANCHOR_PRIOR, n_levels: int = ANCHOR_LEVELS, min_ratio: float = ANCHOR_MIN_RATIO,
 ) -> np.ndarray:
-    """(F, P) soft-anchoring priors: on each of the `n_levels` coarsest partitions with a part per prompt, the part
-    `assign_parts_to_prompts` gives each of the `competing_prompts` adds `prior / n_levels` to that prompt on its
-    faces (`scores` are the refined scores whose part distributions decide)."""
+    """(F, P) soft-anchoring priors: on each of the `n_levels` coarsest partitions with a part per found prompt
+    (`anchoring_levels`; none: all zero), the part `assign_parts_to_prompts` gives each of the `competing_prompts`
+    adds `prior / n_levels` to that prompt on its faces (`scores` are the refined scores whose part distributions
+    decide)."""
     scores = np.asarray(scores, dtype=np.float64)
     face_areas = np.asarray(face_areas, dtype=np.float64)
     _check_inputs(scores, partitions, face_areas)
     if prior < 0 or n_levels < 1:
         raise ValueError(f"need prior >= 0 and n_levels >= 1, got {prior} and {n_levels}")
-    n_prompts = scores.shape[1]
-    levels = sorted((p for p in partitions if p.n_parts >= n_prompts), key=lambda p: -p.threshold)[:n_levels]
-    levels = levels or [coarsest_with_parts(partitions, n_prompts)]
     priors = np.zeros_like(scores)
+    levels = anchoring_levels(partitions, scores, n_levels)
     for partition in levels:
         means = part_mean_scores(scores, partition.part_of_face, face_areas)
         distributions = means / np.maximum(means.sum(axis=1, keepdims=True), 1e-18)

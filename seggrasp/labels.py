@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import unicodedata
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -20,25 +21,45 @@ UNKNOWN = -1
 
 
 def prompt_key(name: str) -> str:
-    """The form prompts and part names are compared in: stripped and lower-cased (the one matching rule)."""
+    """The form prompts and part names are compared in (the one matching rule): Unicode NFC (so a composed and a
+    decomposed "café" are one name), stripped and lower-cased."""
     if not isinstance(name, str):
         raise ValueError(f"a prompt or part name must be a string, got {type(name).__name__} {name!r}")
-    return name.strip().lower()
+    return unicodedata.normalize("NFC", name).strip().lower()
+
+
+def same_name_groups(names: Sequence[str]) -> list[list[str]]:
+    """The groups of two or more `names` that `prompt_key` makes equal (e.g. ["handle", "HANDLE"])."""
+    groups: dict[str, list[str]] = {}
+    for name in names:
+        groups.setdefault(prompt_key(name), []).append(name)
+    return [group for group in groups.values() if len(group) > 1]
+
+
+def _refuse_same_names(names: Sequence[str], rule: str) -> None:
+    """ValueError stating `rule` and naming the `same_name_groups` of `names`, if any."""
+    groups = same_name_groups(names)
+    if groups:
+        # names that differ only in Unicode composition print alike: show their code points
+        shown = [[ascii(n) if len({unicodedata.normalize("NFC", m) for m in group}) < len(group) else repr(n)
+                  for n in group] for group in groups]
+        listed = "; ".join(" and ".join(group) for group in shown)
+        raise ValueError(f"{rule}, but {listed} name the same part (names are compared case-insensitively, after "
+                         "Unicode NFC normalisation)")
 
 
 def check_prompts(prompts: Sequence[str]) -> list[str]:
-    """Stripped prompts; ValueError if there are none, one is empty, or two are the same (case-insensitively)."""
+    """Stripped prompts in Unicode NFC; ValueError if there are none, one is empty, or two are the same under
+    `prompt_key` (case-insensitively)."""
     if isinstance(prompts, str):
         raise ValueError(f"prompts must be a list of part names, got the single string {prompts!r}")
-    cleaned = [str(p).strip() for p in prompts]
-    if not cleaned:
+    given = [str(p).strip() for p in prompts]
+    if not given:
         raise ValueError("give at least one prompt (a part name such as 'handle')")
-    if any(not p for p in cleaned):
+    if any(not p for p in given):
         raise ValueError(f"prompts must not be empty: {list(prompts)}")
-    lowered = [prompt_key(p) for p in cleaned]
-    if len(set(lowered)) != len(lowered):
-        raise ValueError(f"prompts must be distinct: {cleaned}")
-    return cleaned
+    _refuse_same_names(given, "prompts must be distinct")
+    return [unicodedata.normalize("NFC", p) for p in given]
 
 
 def find_prompt(names: Sequence[str], name: str) -> int | None:
@@ -58,7 +79,8 @@ def prompt_index(names: Sequence[str], name: str, what: str = "prompts") -> int:
 
 @dataclass
 class PartLabels:
-    """Part names and one label per face (-1 = unknown)."""
+    """Part names (distinct under `prompt_key`: "handle" and "HANDLE" are refused) and one label per face
+    (-1 = unknown)."""
 
     parts: list[str]
     face_labels: np.ndarray
@@ -76,8 +98,7 @@ class PartLabels:
             if not np.all(np.equal(np.mod(labels, 1), 0)):
                 raise ValueError("face_labels must be integers")
         self.face_labels = labels.astype(np.int64)
-        if len(set(self.parts)) != len(self.parts):
-            raise ValueError(f"part names must be unique, got {self.parts}")
+        _refuse_same_names(self.parts, "part names must be unique")
         bad = (self.face_labels < UNKNOWN) | (self.face_labels >= len(self.parts))
         if bad.any():
             raise ValueError(

@@ -1,7 +1,12 @@
 """Mesh loading, validation, repair and normalisation.
 
 Every per-face result in SegGrasp refers to the faces of the *input file* in file order. Internally a mesh may be
-repaired (duplicate vertices merged, zero-area faces dropped); `PreparedMesh` keeps the map between the two orders.
+repaired (duplicate vertices merged, zero-area faces dropped, duplicate faces merged); `PreparedMesh` keeps the map
+between the two orders.
+
+Duplicate faces (two or more faces on the same three vertices after vertex merging, whatever their winding) are one
+working face: a renderer's depth test shows only one of the coincident copies, so the others would collect no votes.
+Every copy takes the working face's value (`PreparedMesh.to_source`), so all copies get the same label.
 """
 
 from __future__ import annotations
@@ -10,6 +15,7 @@ import hashlib
 import io
 import logging
 import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -23,6 +29,9 @@ SUPPORTED_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
 #: Bounding-box extents outside this range (metres) are rejected as absurd: most likely wrong units.
 MIN_EXTENT_M = 1e-3
 MAX_EXTENT_M = 10.0
+#: Vertices farther than this from the origin (metres) are rejected: float64 resolves only about 1e-16 of a
+#: coordinate, so an object placed 1e12 m away has its faces collapse (wrong units or a geo-referenced scan).
+MAX_COORDINATE_M = 1.0e3
 #: Faces whose area is below this fraction of the mean face area are treated as degenerate.
 DEGENERATE_AREA_FRACTION = 1e-10
 
@@ -33,6 +42,7 @@ class PreparedMesh:
 
     `mesh.faces[k]` came from input face `source_face[k]`. Input faces that were dropped as degenerate map to the
     nearest kept face in `source_to_work`, so every input face has a working face to take its value from.
+    `duplicate_faces` are the input faces that repeat an earlier face (`to_source` gives them its value).
     """
 
     mesh: trimesh.Trimesh
@@ -40,6 +50,7 @@ class PreparedMesh:
     source_to_work: np.ndarray
     source_path: Path | None = None
     dropped_faces: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    duplicate_faces: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_faces(self) -> int:
@@ -72,17 +83,19 @@ def load_mesh(
     """Load a mesh file (OBJ, PLY, OFF, STL, GLB/glTF) and validate and repair it; see `prepare_mesh`.
 
     Text that is not UTF-8 (a Latin-1 byte in a comment) is read as Latin-1. A file that holds no mesh of its
-    format, or only points, is a ValueError naming the file and what was found.
+    format, or only points, is a ValueError naming the file and what was found; so is a path that is a folder, a
+    named pipe or a device (never opened), and an ASCII PLY whose header's element counts disagree with its body.
     """
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"mesh file not found: {path}")
+    _check_regular_file(path)
     suffix = path.suffix.lower()
     if suffix not in SUPPORTED_SUFFIXES:
         raise ValueError(f"unsupported mesh format {path.suffix!r} for {path}; use one of {SUPPORTED_SUFFIXES}")
     fmt = suffix[1:].upper()
     if path.stat().st_size == 0:
         raise ValueError(f"{path} is empty (0 bytes): not a readable {fmt} mesh")
+    if suffix == ".ply":
+        check_ascii_ply_counts(path, path.read_bytes())
     try:
         source = _utf8_source(path, suffix)
         scene = trimesh.load_scene(source, file_type=suffix[1:], process=False, skip_materials=True)
@@ -103,6 +116,64 @@ def load_mesh(
     )
     prepared.source_path = path
     return prepared
+
+
+def _check_regular_file(path: Path) -> None:
+    """FileNotFoundError if nothing is at `path`, ValueError naming what is there if it is no regular file. Uses
+    `stat` only, so a named pipe is never opened (opening one for reading blocks until a writer comes)."""
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise FileNotFoundError(f"mesh file not found: {path}") from None
+    except OSError as exc:
+        raise ValueError(f"mesh file {path} cannot be read: {exc.strerror or exc}") from exc
+    kinds = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe (FIFO)"), (stat.S_ISCHR, "a character device"),
+             (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+    for test, kind in kinds:
+        if test(mode):
+            raise ValueError(f"{path} is {kind}, not a mesh file")
+
+
+def check_ascii_ply_counts(path: Path, raw: bytes) -> None:
+    """ValueError naming the file and line when an ASCII PLY's body holds fewer data lines than its header's element
+    counts declare (a truncated file) or more (a header that understates a count: the extra faces would be lost).
+    Binary PLY files and files without a header are left to the reader."""
+    end = raw.find(b"end_header")
+    if end < 0:
+        return
+    header = raw[:end].decode("latin-1").splitlines()
+    if not any(line.split()[:2] == ["format", "ascii"] for line in header):
+        return
+    elements: list[tuple[str, int, int]] = []  # (name, count, header line number)
+    for number, line in enumerate(header, start=1):
+        words = line.split()
+        if len(words) == 3 and words[0] == "element":
+            try:
+                elements.append((words[1], int(words[2]), number))
+            except ValueError:
+                raise ValueError(f"{path} line {number}: element count {words[2]!r} is not an integer") from None
+    newline = raw.find(b"\n", end)
+    body = raw[newline + 1:] if newline >= 0 else b""
+    first_line = len(header) + 1 + (newline >= 0)  # line number of the body's first line
+    expected = sum(count for _, count, _ in elements)
+    if body.count(b"\n") + (not body.endswith(b"\n") and bool(body)) == expected and b"\n\n" not in body:
+        return  # the common case, checked without splitting the body
+    lines = [first_line + i for i, text in enumerate(body.splitlines()) if text.strip()]
+    start = 0
+    for name, count, declared_on in elements:
+        if len(lines) < start + count:
+            where = f"line {lines[-1]}" if lines else f"line {first_line - 1}"
+            raise ValueError(
+                f"{path} {where}: the file ends after {len(lines) - start} of the {count} {name} lines that the "
+                f"header declares on line {declared_on} (a truncated file?)"
+            )
+        start += count
+    if len(lines) > expected:
+        name, count, declared_on = elements[-1] if elements else ("data", 0, len(header))
+        raise ValueError(
+            f"{path} line {lines[expected]}: {len(lines) - expected} data lines follow the {count} {name} lines that "
+            f"the header declares on line {declared_on} (the header understates a count; those lines would be lost)"
+        )
 
 
 def _utf8_source(path: Path, suffix: str) -> Path | io.BytesIO:
@@ -133,8 +204,9 @@ def prepare_mesh(
     """Validate raw arrays and build a repaired working mesh.
 
     Raises ValueError for: no vertices or faces, non-finite vertices, faces that are not triangles, face indices
-    out of range, a mesh whose faces are all degenerate, or a bounding box outside [min_extent, max_extent] metres.
-    Repairs: merges duplicate vertices and drops zero-area faces (keeping the map to the input face order).
+    out of range, a mesh whose faces are all degenerate, a bounding box outside [min_extent, max_extent] metres, or
+    vertices farther than MAX_COORDINATE_M from the origin. Repairs: merges duplicate vertices, drops zero-area faces
+    and merges duplicate faces (module docstring), keeping the map to the input face order.
     """
     vertices, faces = _checked_arrays(vertices, faces, min_extent, max_extent, name)
 
@@ -156,17 +228,27 @@ def prepare_mesh(
         raise ValueError(f"{name}: all {len(faces)} faces have zero area")
     kept = np.flatnonzero(keep)
     dropped = np.flatnonzero(~keep)
+    # Faces on the same vertex set are one working face, the first copy in file order.
+    _, first, group = np.unique(np.sort(merged_faces[kept], axis=1), axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(first))
+    work_of_kept = rank[group.reshape(-1)]
+    unique = kept[np.sort(first)]
+    duplicates = np.setdiff1d(kept, unique)
+    if len(duplicates):
+        logger.info("%s: %d duplicate faces merged (each copy takes its original's label)", name, len(duplicates))
 
-    mesh = trimesh.Trimesh(vertices=merged_vertices, faces=merged_faces[kept], process=False, validate=False)
+    mesh = trimesh.Trimesh(vertices=merged_vertices, faces=merged_faces[unique], process=False, validate=False)
     mesh.remove_unreferenced_vertices()
 
     source_to_work = np.empty(len(faces), dtype=np.int64)
-    source_to_work[kept] = np.arange(len(kept))
+    source_to_work[kept] = work_of_kept
     if len(dropped):
         centroids = vertices[faces].mean(axis=1)
-        _, nearest = cKDTree(centroids[kept]).query(centroids[dropped])
+        _, nearest = cKDTree(centroids[unique]).query(centroids[dropped])
         source_to_work[dropped] = nearest
-    return PreparedMesh(mesh=mesh, source_face=kept, source_to_work=source_to_work, dropped_faces=dropped)
+    return PreparedMesh(mesh=mesh, source_face=unique, source_to_work=source_to_work, dropped_faces=dropped,
+                        duplicate_faces=duplicates)
 
 
 def _checked_arrays(vertices: np.ndarray, faces: np.ndarray, min_extent: float, max_extent: float,
@@ -196,11 +278,19 @@ def _checked_arrays(vertices: np.ndarray, faces: np.ndarray, min_extent: float, 
             f"(first: face {row} = {faces[row].tolist()})"
         )
     faces = faces.astype(np.int64)
-    extent = float(np.ptp(vertices[np.unique(faces)], axis=0).max())
+    used = vertices[np.unique(faces)]
+    extent = float(np.ptp(used, axis=0).max())
     if not (min_extent <= extent <= max_extent):
         raise ValueError(
             f"{name}: absurd size: largest bounding-box side is {extent:.6g} m, outside [{min_extent}, {max_extent}] m. "
             "Meshes must be in metres (a scan in millimetres needs scaling by 0.001)."
+        )
+    farthest = float(np.abs(used).max())
+    if farthest > MAX_COORDINATE_M:
+        raise ValueError(
+            f"{name}: absurd position: a vertex lies {farthest:.6g} m from the origin (at most {MAX_COORDINATE_M:g} m), "
+            "where float64 cannot resolve a tabletop object's faces (wrong units, or a geo-referenced scan?); move "
+            "the mesh near the origin."
         )
     return vertices, faces
 
