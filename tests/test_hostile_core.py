@@ -183,3 +183,35 @@ def test_prompts_the_detector_never_boxes_are_reported_not_found(mug, tmp_path: 
     assert summary["faces_per_prompt"]["lid"] == summary["faces_per_prompt"]["spout"] == 0
     assert summary["evaluation"]["final_area"] == alone["evaluation"]["final_area"]
     assert "not found (no detector box in any view): lid, spout" in capsys.readouterr().out
+
+
+# ------------------------------------------------------------------------------------------------------ caches
+
+
+@pytest.mark.parametrize("damage, problem", [
+    ("huge id", "part id 2000000000 beyond the 50 faces"),
+    ("gap", "part ids not numbered 0, 1, ..."),
+    ("floats", "part ids of type float64"),
+])
+def test_cache_entry_with_impossible_part_ids_is_discarded(tmp_path: Path, caplog, damage: str, problem: str) -> None:
+    """Issue 34: an entry with part id 2e9 passed as valid and made every run ask for 29.8 GiB."""
+    import time
+
+    from seggrasp.decompose.cache import load_cached
+
+    parts = np.repeat(np.arange(5), 10)
+    if damage == "huge id":
+        parts[-1] = 2_000_000_000
+    elif damage == "gap":
+        parts[parts == 4] = 7
+    writable, bundled = tmp_path / "cache", tmp_path / "bundled"
+    for folder in (writable, bundled):
+        folder.mkdir()
+        np.savez(folder / "key.npz", part_of_face=parts.astype(np.float64) if damage == "floats" else parts)
+    started = time.perf_counter()
+    with caplog.at_level("WARNING", logger="seggrasp.decompose"):
+        assert load_cached("key", 50, writable, [writable, bundled]) is None
+    assert time.perf_counter() - started < 2.0
+    assert not (writable / "key.npz").exists() and (bundled / "key.npz").exists()  # read-only: skipped, kept
+    assert f"{writable / 'key.npz'}: {problem}" in caplog.text and "discarded" in caplog.text
+    assert f"{bundled / 'key.npz'}: {problem}" in caplog.text and "skipped" in caplog.text

@@ -3,8 +3,9 @@
 The writable cache is `$SEGGRASP_CACHE/decompositions` (default `~/.cache/seggrasp/decompositions`); the bundled
 twin caches in assets/decompositions/ are searched read-only. Entries are written atomically (a temporary file and a
 rename), so a killed run leaves no partial entry. An entry that cannot be read anyway (truncated or emptied by a
-full disk, a copy or a hand) is logged with its path: discarded from the writable cache, so the run is recomputed,
-and skipped in a read-only one.
+full disk, a copy or a hand) or holds no valid partition (one integer part id per face, numbered 0, 1, ... in order
+of first appearance, so below the face count) is logged with its path: discarded from the writable cache, so the
+run is recomputed, and skipped in a read-only one.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from seggrasp.decompose.mapping import canonical_parts
 from seggrasp.io import atomic_save_npz, cache_root
 
 logger = logging.getLogger(__name__)
@@ -34,13 +36,20 @@ def _read_entry(path: Path, n_faces: int) -> tuple[np.ndarray | None, str]:
     """The part array of one entry, or None and what is wrong with it."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            parts = np.asarray(data["part_of_face"]).astype(np.int64)
+            stored = np.asarray(data["part_of_face"])
     except DAMAGED_ENTRY_ERRORS as exc:
         return None, f"unreadable ({type(exc).__name__}: {exc})"
-    if parts.shape != (n_faces,):
-        return None, f"{parts.size} face labels, expected {n_faces}"
+    if not np.issubdtype(stored.dtype, np.integer):
+        return None, f"part ids of type {stored.dtype}, expected integers"
+    if stored.shape != (n_faces,):
+        return None, f"{stored.size} face labels, expected {n_faces}"
+    parts = stored.astype(np.int64)
     if parts.size and parts.min() < 0:
         return None, "negative part ids"
+    if parts.size and parts.max() >= n_faces:
+        return None, f"part id {int(parts.max())} beyond the {n_faces} faces (every part owns a face)"
+    if not np.array_equal(canonical_parts(parts), parts):
+        return None, "part ids not numbered 0, 1, ... in order of first appearance, as every run writes them"
     return parts, ""
 
 
