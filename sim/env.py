@@ -18,7 +18,12 @@ contacts are not observed, so the reward is 1.0 for a lift and `info["on_part"]`
 `GraspOutcome` as JSON and `info["record"]` the episode's `TrialRecord` as JSON.
 
 Misuse is refused with a clear error before anything moves: `step` before a successful `reset`, after the episode
-ended or after `close`, an action outside `action_space`, a prompt that is not a string or not a part.
+ended or after `close`, an action that is not 7 real numbers inside `action_space` (a complex action is refused, not
+cut to its real part), `options` that are not a dict, a prompt that is not a string or not a part, an `image_size`
+that is not a (width, height) pair of whole pixels within IMAGE_WIDTH_RANGE. An environment made by `gym.make` whose
+first `reset` failed refuses every `step`: gymnasium's passive env checker, which `gym.make` wraps around it, keeps
+no reset observation after that failure and would raise TypeError after every step, once the grasp has run; make a
+new environment.
 """
 
 from __future__ import annotations
@@ -47,6 +52,8 @@ MAX_COORDINATE = 10.0
 #: Action bounds: position (m), rotation vector (rad), width (m).
 ACTION_LOW = np.array([0.0, -0.7, -0.05, -np.pi, -np.pi, -np.pi, 0.0], dtype=np.float32)
 ACTION_HIGH = np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, 0.085], dtype=np.float32)
+#: Camera image widths (pixels; the height is 3/4 of it): up to the D435 colour stream's widest mode.
+IMAGE_WIDTH_RANGE = (16, 1920)
 
 
 def register_envs() -> None:
@@ -58,13 +65,39 @@ def register_envs() -> None:
 
 def action_to_grasp(action: np.ndarray) -> tuple[np.ndarray, float]:
     """Action vector -> (T_world_grasp 4x4, width)."""
-    action = np.asarray(action, dtype=np.float64)
+    action = real_action(action)
     if action.shape != (7,) or not np.all(np.isfinite(action)):
         raise ValueError(f"action must be 7 finite numbers (x, y, z, rx, ry, rz, width), got {action!r}")
     T = np.eye(4)
     T[:3, :3] = Rotation.from_rotvec(action[3:6]).as_matrix()
     T[:3, 3] = action[:3]
     return T, float(action[6])
+
+
+def real_action(action: Any) -> np.ndarray:
+    """`action` as float64; ValueError for anything but real numbers (a complex value is not cut to its real part,
+    booleans and text are no coordinates)."""
+    given = np.asarray(action)
+    if given.dtype.kind not in "iuf":
+        raise ValueError(f"action must be real numbers (x, y, z, rx, ry, rz, width), got {given.dtype} values "
+                         f"{given.tolist()!r}; nothing was executed")
+    return given.astype(np.float64)
+
+
+def check_image_size(image_size: Any) -> tuple[int, int]:
+    """(width, height) as ints; ValueError unless a pair of whole pixel counts with the width in IMAGE_WIDTH_RANGE
+    (the 4:3 aspect is checked by the camera model)."""
+    try:
+        width, height = image_size
+    except (TypeError, ValueError):
+        raise ValueError(f"image_size must be a (width, height) pair of pixels, got {image_size!r}") from None
+    for value in (width, height):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise ValueError(f"image_size must be whole pixels, got {image_size!r}")
+    low, high = IMAGE_WIDTH_RANGE
+    if not low <= width <= high:
+        raise ValueError(f"image_size {width}x{height}: the width must be {low}..{high} pixels (4:3, e.g. 640x480)")
+    return int(width), int(height)
 
 
 def grasp_to_action(T_world_grasp: np.ndarray, width: float) -> np.ndarray:
@@ -93,6 +126,7 @@ class SegGraspEnv(gym.Env):
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        image_size = check_image_size(image_size)
         self.render_mode = render_mode
         self.include_mesh = include_mesh
         self.backend = backend
@@ -121,6 +155,7 @@ class SegGraspEnv(gym.Env):
         self.prompt: str | None = None
         self._episode: Episode | None = None  # set by a successful reset, cleared when the step ends the episode
         self.scene_seed: int | None = None  # the cell's scene seed of the last successful reset
+        self._reset_outcomes: list[bool] = []  # whether each reset succeeded (the first one matters, see `step`)
 
     def _make_observation_space(self, frames: list[Frame]) -> spaces.Dict:
         entries: dict[str, spaces.Space] = {
@@ -165,6 +200,15 @@ class SegGraspEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
         self._check_open()
         self._episode = None  # a reset that fails leaves no episode to step
+        self._reset_outcomes.append(False)
+        result = self._reset(seed, options)
+        self._reset_outcomes[-1] = True
+        return result
+
+    def _reset(self, seed: int | None, options: dict[str, Any] | None):
+        if options is not None and not isinstance(options, dict):
+            raise ValueError(f"options must be a dict such as {{'object_id': ..., 'prompt': ...}} or None, got "
+                             f"{type(options).__name__} {options!r}")
         super().reset(seed=seed)
         options = dict(options or {})
         unknown = set(options) - {"object_id", "prompt"}
@@ -205,10 +249,14 @@ class SegGraspEnv(gym.Env):
 
     def step(self, action: np.ndarray):
         self._check_open()
+        if self.spec is not None and self._reset_outcomes[:1] == [False]:
+            raise RuntimeError("this environment's first reset() failed; gymnasium's env checker, which gym.make "
+                               "wraps around it, then fails every step after the grasp has run, so no step runs: "
+                               "make a new environment with gym.make")
         if self._episode is None:
             raise RuntimeError("no episode to step: call reset() first (after a failed reset, or once the step "
                                "ended the episode)")
-        checked = np.asarray(action, dtype=np.float64)
+        checked = real_action(action)
         if checked.shape != (7,) or not np.all(np.isfinite(checked)) or not self.action_space.contains(
                 checked.astype(np.float32)):
             raise ValueError(f"action {np.asarray(action).tolist()} is outside the action space "

@@ -215,3 +215,68 @@ def test_cache_entry_with_impossible_part_ids_is_discarded(tmp_path: Path, caplo
     assert not (writable / "key.npz").exists() and (bundled / "key.npz").exists()  # read-only: skipped, kept
     assert f"{writable / 'key.npz'}: {problem}" in caplog.text and "discarded" in caplog.text
     assert f"{bundled / 'key.npz'}: {problem}" in caplog.text and "skipped" in caplog.text
+
+
+# --------------------------------------------------------------------------------------------------------- gym
+
+GYM_SMALL = dict(image_size=(160, 120), n_cameras=1, embodiment="floating", include_mesh=True)
+
+
+@pytest.fixture(scope="module")
+def gym_objects(tmp_path_factory):
+    from sim.primitives import primitive_object
+
+    return [primitive_object("box", (0.05, 0.05, 0.08), tmp_path_factory.mktemp("objects"), object_id="box")]
+
+
+@pytest.fixture
+def made_env(gym_objects):
+    """`gym.make`'s environment (default wrappers, env checker included) whose cell records every executed grasp."""
+    import gymnasium as gym
+
+    import sim  # noqa: F401  (registers SegGrasp-v0)
+
+    env = gym.make("SegGrasp-v0", objects=gym_objects, **GYM_SMALL)
+    executed: list = []
+    env.unwrapped.cell.execute = lambda *args, **kwargs: executed.append(args)
+    yield env, executed
+    env.close()
+
+
+ACTION = np.array([0.5, 0.0, 0.1, np.pi, 0.0, 0.0, 0.05])
+
+
+@pytest.mark.parametrize("size", [(0, 0), (-640, -480), (640.5, 480), (100000, 75000), "640x480"],
+                         ids=["zero", "negative", "fractional", "huge", "text"])
+def test_gym_refuses_an_impossible_image_size(gym_objects, size) -> None:
+    from sim.env import SegGraspEnv
+
+    with pytest.raises(ValueError, match="image_size"):
+        SegGraspEnv(gym_objects, embodiment="floating", n_cameras=1, image_size=size)
+
+
+def test_gym_refuses_a_complex_action_before_it_moves(made_env) -> None:
+    env, executed = made_env
+    env.reset(seed=0, options={"object_id": "box", "prompt": "side"})
+    with pytest.raises(ValueError, match="action must be real numbers.*complex128.*nothing was executed"):
+        env.step(ACTION + 1e-3j)
+    assert executed == []
+
+
+def test_gym_refuses_options_that_are_not_a_dict(made_env) -> None:
+    env, _ = made_env
+    with pytest.raises(ValueError, match="options must be a dict .* got str 'str'"):
+        env.reset(seed=0, options="str")
+
+
+def test_gym_after_a_failed_first_reset_refuses_every_step_before_it_moves(made_env) -> None:
+    """Issue 34: after a failed first reset(), gymnasium's env checker (a default wrapper of gym.make) kept no reset
+    data, so every step ran the grasp and then raised TypeError."""
+    env, executed = made_env
+    with pytest.raises(ValueError, match="no part"):
+        env.reset(seed=0, options={"object_id": "box", "prompt": "handle"})
+    env.reset(seed=0, options={"object_id": "box", "prompt": "side"})
+    for _ in range(2):
+        with pytest.raises(RuntimeError, match="first reset\\(\\) failed.*make a new environment"):
+            env.step(ACTION)
+    assert executed == []
