@@ -80,10 +80,11 @@ class ControlServer(TcpServer):
                     stream.flush()
 
 
-def request(cmd: str, host: str = "127.0.0.1", port: int = CONTROL_PORT, timeout: float = 30.0,
+def request(cmd: str, /, *, channel: tuple[str, int] = ("127.0.0.1", CONTROL_PORT), timeout: float = 30.0,
             **arguments: Any) -> dict:
-    """Send one control request and return its reply; raise `LabError` if the cell refused it."""
-    with socket.create_connection((host, port), timeout=timeout) as sock, sock.makefile("rwb") as stream:
+    """Send `{"cmd": cmd, **arguments}` to the control channel at `channel` (host, port) and return the reply;
+    raise `LabError` if the cell refused it."""
+    with socket.create_connection(channel, timeout=timeout) as sock, sock.makefile("rwb") as stream:
         stream.write((json.dumps({"cmd": cmd, **arguments}) + "\n").encode())
         stream.flush()
         line = stream.readline()
