@@ -10,9 +10,9 @@ import sys
 
 import numpy as np
 import pytest
+from lab_harness import run_command, run_in_lab
 from scipy.spatial.transform import Rotation
 
-from lab_harness import run_command, run_in_lab
 from sim.lab import netns
 
 pytestmark = pytest.mark.skipif(netns.unshare_command() is None, reason="needs a private network namespace")
@@ -256,3 +256,45 @@ def test_run_without_a_namespace_serves_on_the_host_loopback_or_names_the_taken_
     assert code == 2 and "port 30004" in stderr and "Traceback" not in stderr
     assert free_code == 0 and "client ran" in free_stdout, free_stderr
     assert "serving on the host's 127.0.0.1" in free_stderr
+
+
+def test_kinematic_arm_inverse_kinematics_round_trips_and_refuses_what_it_cannot_reach():
+    from sim.lab.kinematic import KinematicArm
+
+    arm = KinematicArm(planes=(((0.0, 0.0, 1.0), 0.05),))  # a safety plane 5 cm above the base
+    arm.set_tcp([0, 0, 0.155, 0, 0, 0])
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        q = np.asarray(arm.actual_q()) + rng.uniform(-0.4, 0.4, 6)
+        arm.move_joints(q.tolist(), 3.0, 40.0)
+        while arm.is_moving():
+            arm.step(0.01)
+        pose = arm.actual_tcp_pose()
+        np.testing.assert_allclose(arm.inverse_kinematics(pose, q.tolist()), q, atol=1e-7)
+        assert arm.pose_within_limits(pose) is (pose[2] >= 0.05)
+    assert arm.inverse_kinematics([3.0, 0, 0.3, 0, 3.14, 0], None) is None
+    assert not arm.pose_within_limits([3.0, 0, 0.3, 0, 3.14, 0])
+    assert arm.joints_within_limits([0.0] * 6) and not arm.joints_within_limits([7.0, 0, 0, 0, 0, 0])
+
+
+def test_kinematic_arm_follows_trapezoids_and_brakes_at_the_given_deceleration():
+    from sim.lab.kinematic import KinematicArm
+
+    arm = KinematicArm()
+    start = arm.actual_tcp_pose()
+    target = [start[0] + 0.2, *start[1:]]
+    arm.move_linear(target, 0.1, 0.5)
+    t = 0.0
+    while arm.is_moving():
+        arm.step(0.002)
+        t += 0.002
+    assert t == pytest.approx(0.2 / 0.1 + 0.1 / 0.5, abs=0.005)
+    np.testing.assert_allclose(arm.actual_tcp_pose(), target, atol=1e-9)
+    arm.move_linear(start, 0.1, 0.5)
+    for _ in range(500):  # 1 s: at full speed
+        arm.step(0.002)
+    braking_from = arm.actual_tcp_pose()[0]
+    arm.stop(1.0)
+    while arm.is_moving():
+        arm.step(0.002)
+    assert braking_from - arm.actual_tcp_pose()[0] == pytest.approx(0.1**2 / (2 * 1.0), abs=2e-4)  # v^2 / 2a

@@ -24,8 +24,9 @@ import signal
 import subprocess
 import sys
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 from sim.lab import netns
 
@@ -98,7 +99,12 @@ class LabStartError(Exception):
 def open_lab(args: argparse.Namespace) -> Callable[[], None]:
     """Build and start the emulated cell; return the function that stops it. The control channel opens last."""
     from sim.lab.control import ControlServer, install_controller_commands
-    from sim.lab.controller import DEFAULT_POLYSCOPE, Controller, ControllerSettings, parse_polyscope
+    from sim.lab.controller import (
+        DEFAULT_POLYSCOPE,
+        Controller,
+        ControllerSettings,
+        parse_polyscope,
+    )
     from sim.lab.dashboard import DashboardServer
 
     args.host = args.host or ("0.0.0.0" if netns.in_private_namespace() else "127.0.0.1")

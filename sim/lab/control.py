@@ -5,17 +5,19 @@ One JSON object per line, `{"cmd": NAME, ...arguments}`; one reply line, `{"ok":
 `handler(request: dict) -> dict`; an exception in a handler becomes the error reply. `install_controller_commands`
 registers the controller's own commands:
 
-| cmd | arguments | effect |
-|---|---|---|
-| ping | | `{"pong": true}` |
-| state | | the controller's state (program, safety, joints, pose, RTDE clients and rates, commands seen) |
-| protective_stop / emergency_stop | | the arm halts, the program stops (returns once the controller has seen it) |
-| release | | clears either stop (the program stays stopped until a script is uploaded) |
-| drop_link | port (30004), down_for (0 s) | closes every client of that port; refuses new ones for down_for |
-| stop_streaming / start_streaming | | RTDE answers every setup but sends no data packages (F3) / streams again |
-| delay_state | seconds | RTDE packages to clients without output_int_register_0 (ur_rtde's receive interface) lag by `seconds` (0 ends it) |
-| refuse_remote_control | refuse (true) | the dashboard reports local control; uploaded scripts do not start (5.6+) |
-| garbage | port (30004), mode ("values", "bytes", "off") | noise instead of replies: RTDE data packages of random bytes ("values") or a random byte stream ("bytes"); other ports: every reply is noise |
+- `ping` -> `{"pong": true}`
+- `state` -> the controller's state: program, safety, joints, pose, TCP, RTDE clients and their rates, commands
+  seen (by ur_rtde name), dashboard commands received, clock statistics
+- `protective_stop`, `emergency_stop`: the arm halts and the program stops (the reply comes once the controller
+  has seen it); `release` clears either (the program stays stopped until a script is uploaded again)
+- `drop_link {port: 30004, down_for: 0}`: closes every client of that port and refuses new ones for down_for s
+- `stop_streaming` / `start_streaming`: RTDE answers every setup but sends no data packages (F3) / streams again
+- `delay_state {seconds}`: RTDE packages to clients without output_int_register_0 (ur_rtde's receive interface,
+  not its control interface) lag by `seconds` (0 ends it)
+- `refuse_remote_control {refuse: true}`: the dashboard reports local control, uploaded scripts do not start
+  (PolyScope 5.6+)
+- `garbage {port: 30004, mode: "values" | "bytes" | "off"}`: RTDE data packages of random bytes ("values") or a
+  random byte stream ("bytes"); on other ports every reply is noise
 
 `request(cmd, **arguments)` is the client side.
 """
@@ -26,7 +28,8 @@ import json
 import logging
 import socket
 import time
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 from sim.lab import TcpServer
 
@@ -59,7 +62,7 @@ def dispatch(line: str) -> dict:
         return {"ok": False, "error": f"unknown command {request_['cmd']!r}; known: {', '.join(sorted(_HANDLERS))}"}
     try:
         return {"ok": True, **handler(request_)}
-    except Exception as exc:  # every handler failure is the client's error reply, never the channel's death
+    except Exception as exc:  # noqa: BLE001 -- every handler failure is the error reply, never the channel's death
         log.warning("control %s failed: %s", request_["cmd"], exc)
         prefix = "" if isinstance(exc, ValueError) else f"{type(exc).__name__}: "
         return {"ok": False, "error": prefix + str(exc)}

@@ -25,8 +25,9 @@ import socket
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass, field
-from typing import Any, Callable, Protocol
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -53,8 +54,8 @@ ROBOT_POWER_ON_BIT, ROBOT_PROGRAM_RUNNING_BIT = 1 << 0, 1 << 1
 JOINT_MODE_RUNNING = 253
 
 #: ur_rtde's command numbers (its RobotCommand::Type) that this controller answers.
-COMMAND_NAMES = {1: "movej", 2: "movej_ik", 3: "movel", 29: "set_tcp", 30: "get_inverse_kin_args", 31: "protective_stop",
-                 33: "stopl", 34: "stopj", 36: "is_pose_within_safety_limits", 37: "is_joints_within_safety_limits",
+COMMAND_NAMES = {1: "movej", 2: "movej_ik", 3: "movel", 29: "set_tcp", 30: "get_inverse_kin_args",
+                 31: "protective_stop", 33: "stopl", 34: "stopj", 36: "is_pose_within_safety_limits", 37: "is_joints_within_safety_limits",
                  40: "get_tcp_offset", 46: "get_inverse_kin_default", 47: "is_steady",
                  60: "get_inverse_kin_has_solution_default", 61: "get_inverse_kin_has_solution_args",
                  255: "stop_script"}
@@ -140,7 +141,7 @@ class Program:
     pending: str | None = None  # a synchronous motion or stop the main loop waits for
 
     @classmethod
-    def parse(cls, text: str) -> "Program":
+    def parse(cls, text: str) -> Program:
         """Read what the controller needs from a script `def name(): ... end`."""
         header = text.lstrip().split("\n", 1)[0]
         name = header.split()[1].split("(")[0] if len(header.split()) > 1 else "program"
@@ -241,7 +242,8 @@ class Controller:
                       speed: list[float]) -> dict[str, Any]:
         safety = self.safety
         running = self.runtime_state == PLAYING
-        robot_bits = (0 if safety == "emergency_stop" else ROBOT_POWER_ON_BIT) | (ROBOT_PROGRAM_RUNNING_BIT if running else 0)
+        robot_bits = ((0 if safety == "emergency_stop" else ROBOT_POWER_ON_BIT)
+                      | (ROBOT_PROGRAM_RUNNING_BIT if running else 0))
         values: dict[str, Any] = {
             "timestamp": now - self._t0, "actual_q": q, "target_q": q, "actual_qd": qd, "target_qd": qd,
             "actual_TCP_pose": pose, "target_TCP_pose": pose, "actual_TCP_speed": speed, "target_TCP_speed": speed,
@@ -407,7 +409,7 @@ class Controller:
         if not self.arm.joints_within_limits(q):
             raise ScriptRuntimeError(f"movej target {np.round(q, 4).tolist()} is outside the joint limits")
         self._stop_async_move(program)
-        self.arm.move_joints(q, self._in_double(6), self._in_double(7))
+        self.arm.move_joints(q, *self._speed_and_acceleration("movej"))
         self._motion_started(program, "movej")
 
     def _movej_ik(self, program: Program) -> None:
@@ -421,8 +423,14 @@ class Controller:
         if self.arm.inverse_kinematics(pose, list(self.arm.actual_q())) is None:
             raise ScriptRuntimeError(f"movel target {np.round(pose, 4).tolist()} has no inverse kinematics solution")
         self._stop_async_move(program)
-        self.arm.move_linear(pose, self._in_double(6), self._in_double(7))
+        self.arm.move_linear(pose, *self._speed_and_acceleration("movel"))
         self._motion_started(program, "movel")
+
+    def _speed_and_acceleration(self, name: str) -> tuple[float, float]:
+        speed, acceleration = self._in_double(6), self._in_double(7)
+        if not (speed > 0 and acceleration > 0):
+            raise ScriptRuntimeError(f"{name} with speed {speed} and acceleration {acceleration}")
+        return speed, acceleration
 
     def _motion_started(self, program: Program, name: str) -> None:
         if self._in_int(1) == 1:
@@ -492,7 +500,8 @@ class Controller:
             return {
                 "generation": self.settings.generation, "polyscope": ".".join(map(str, self.settings.polyscope)),
                 "frequency": self.settings.frequency, "runtime_state": self.runtime_state,
-                "program_running": self.runtime_state == PLAYING, "program": self.program.name if self.program else None,
+                "program_running": self.runtime_state == PLAYING,
+                "program": self.program.name if self.program else None,
                 "ik_check_in_script": self.program.has_ik_check if self.program else None,
                 "last_stop": self.last_stop, "safety_status": self.safety, "remote_control": self.remote_control,
                 "q": list(map(float, self.arm.actual_q())), "tcp_pose": list(map(float, self.arm.actual_tcp_pose())),

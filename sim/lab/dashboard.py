@@ -14,7 +14,7 @@ import socket
 import string
 import time
 from collections import deque
-from typing import Callable
+from collections.abc import Callable
 
 from sim.lab import TcpServer
 from sim.lab.controller import PAUSED, PLAYING, Controller

@@ -15,7 +15,7 @@ import socket
 import struct
 import subprocess
 import time
-from typing import Callable
+from collections.abc import Callable
 
 #: Set in the environment of a process re-executed inside its private namespace.
 NETNS_ENV = "SIM_LAB_NETNS"
@@ -29,7 +29,7 @@ def unshare_command() -> list[str] | None:
         return None
     for prefix in (["unshare", "-n"], ["unshare", "-rn"]):
         try:
-            probe = subprocess.run([*prefix, "true"], capture_output=True, timeout=10)
+            probe = subprocess.run([*prefix, "true"], capture_output=True, timeout=10, check=False)
         except (OSError, subprocess.TimeoutExpired):
             continue
         if probe.returncode == 0:
@@ -45,7 +45,7 @@ def in_private_namespace() -> bool:
 def loopback_up() -> None:
     """Bring the loopback interface up (as `ip link set lo up`)."""
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        name, flags = _IFREQ.unpack(fcntl.ioctl(sock, _SIOCGIFFLAGS, _IFREQ.pack(b"lo", 0)))
+        _, flags = _IFREQ.unpack(fcntl.ioctl(sock, _SIOCGIFFLAGS, _IFREQ.pack(b"lo", 0)))
         fcntl.ioctl(sock, _SIOCSIFFLAGS, _IFREQ.pack(b"lo", flags | _IFF_UP))
 
 
