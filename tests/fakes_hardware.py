@@ -4,7 +4,8 @@
   that speaks the Robotiq URCap ASCII protocol (SET/GET, `ack`, `<VAR> <value>`) and simulates activation, finger
   travel, an object between the fingers (OBJ 2), the object slipping out (OBJ 3), faults and dropped connections.
 - `FakeUR` with `FakeRTDEControl` / `FakeRTDEReceive`: the ur_rtde calls the arm uses, recording every command,
-  simulating asynchronous motions, protective stops and a connection that drops mid-motion.
+  simulating asynchronous motions, protective stops (which end the control script), a connection that drops
+  mid-motion and a stalled state stream. (tests/test_lab_arm_faults.py runs the real ur_rtde at the wire.)
 - `FakePipeline` / `FakeAlign`: pyrealsense2's pipeline and align objects serving prerecorded `Frame`s as raw
   z16 depth + rgb8 colour with intrinsics and a depth scale.
 - `synthetic_frames`: RGB-D frames of a box on a table, ray cast with trimesh (until the simulated cameras are used).
@@ -247,17 +248,24 @@ class FakeUR:
         self.on_motion: Any = None  # called as on_motion(kind, target) when a motion starts (test hooks)
         self.refuse_poses = False  # isPoseWithinSafetyLimits answers False (a safety plane in the way)
         self.refuse_joints = False  # isJointsWithinSafetyLimits answers False (a joint limit)
+        self.version = (3, 15, 7, 106331)  # what the controller reports (getControllerVersion): a CB3 for a ur5
+        self.program_running = True  # ur_rtde's control script; a protective or emergency stop ends it
+        self.streaming = True  # the state timestamp advances on every read (False: a stalled stream)
+        self.timestamp = 0.0
         self.control_created = 0
         self.receive_created = 0
         self._pending: tuple[str, np.ndarray, int] | None = None
         self._token = -1
 
     def control(self, ip: str) -> FakeRTDEControl:
+        """A new control interface; building one means the link is up."""
         self.control_created += 1
+        self.connected = True
         return FakeRTDEControl(self)
 
     def receive(self, ip: str) -> FakeRTDEReceive:
         self.receive_created += 1
+        self.connected = True
         return FakeRTDEReceive(self)
 
     @property
@@ -281,7 +289,7 @@ class FakeUR:
                 raise RuntimeError("RTDE: connection to the controller lost")
             return 0  # the last value received before the link went quiet
         if self.protective_stop_after_polls is not None and polls >= self.protective_stop_after_polls:
-            self.protective_stopped = True
+            self.protective_stopped, self.program_running = True, False
             self._finish()
             return self._token
         if polls < self.motion_polls:
@@ -301,7 +309,7 @@ class FakeUR:
 
     def start(self, kind: str, target: list[float]) -> bool:
         self.check_link()
-        if self.protective_stopped or self.emergency_stopped:
+        if self.protective_stopped or self.emergency_stopped or not self.program_running:
             return False
         self._pending = (kind, np.asarray(target, dtype=float), 0)
         if self.on_motion is not None:
@@ -360,6 +368,18 @@ class FakeRTDEControl:
         self._record("reconnect")
         return True
 
+    def isProgramRunning(self) -> bool:
+        return self.ur.program_running
+
+    def reuploadScript(self) -> bool:
+        """A new program starts with the installation's TCP (the flange), as on the controller."""
+        self.ur.check_link()
+        self._record("reuploadScript")
+        self.ur.program_running = True
+        self.ur.T_flange_tcp = np.eye(4)
+        self.ur.tcp = forward_kinematics(self.ur.model, self.ur.q)
+        return True
+
     def stopL(self, acceleration: float = 10.0, asynchronous: bool = False) -> None:
         self.ur.check_link()
         self._record("stopL", acceleration)
@@ -390,9 +410,21 @@ class FakeRTDEReceive:
     def isConnected(self) -> bool:
         return self.ur.connected
 
+    def getTimestamp(self) -> float:
+        if self.ur.streaming:
+            self.ur.timestamp += 0.002
+        return self.ur.timestamp
+
+    def getControllerVersion(self) -> tuple[int, int, int, int]:
+        return self.ur.version
+
     def isProtectiveStopped(self) -> bool:
         self.ur.check_link()
         return self.ur.protective_stopped
+
+    def getSafetyMode(self) -> int:
+        self.ur.check_link()
+        return 7 if self.ur.emergency_stopped else 3 if self.ur.protective_stopped else 1
 
     def isEmergencyStopped(self) -> bool:
         self.ur.check_link()
@@ -400,6 +432,7 @@ class FakeRTDEReceive:
 
     def reconnect(self) -> bool:
         self.ur.connected = True
+        self.ur.commands.append(("receive.reconnect", ()))
         return True
 
     def disconnect(self) -> None:

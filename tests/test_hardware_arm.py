@@ -150,8 +150,8 @@ def test_connection_dropped_mid_motion_stops_with_a_clear_error(arm, fake, raise
     with pytest.raises(ConnectionLostError, match="connection"):
         arm.move_linear(pose([0.5, 0.1, 0.2]), 0.1, 0.5)
     assert not arm.is_connected()
-    if not raises:  # the controller may still hear us: the arm was told to stop
-        assert any(name == "stopL" for name, _ in fake.commands)
+    # nothing is sent on a dropped link: ur_rtde would reconnect inside stopL, racing its own reconnect (F2)
+    assert not any(name == "stopL" for name, _ in fake.commands)
     with pytest.raises(ConnectionLostError):
         arm.move_linear(pose([0.5, 0.1, 0.25]), 0.1, 0.5)
     assert len(fake.motions) == 1  # nothing was sent on the dead link
