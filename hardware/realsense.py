@@ -94,6 +94,11 @@ class RealSenseCamera:
         stream_config.enable_stream(rs.stream.color, self.config.width, self.config.height, rs.format.rgb8,
                                     self.config.fps)
         try:
+            if self.recording is not None:
+                # a playback starts in real time, and frames it plays before anyone reads them are dropped (under
+                # load, all but the last): make it deliver as fast as the camera reads before it starts playing
+                resolved = stream_config.resolve(rs.pipeline_wrapper(self._pipeline))
+                resolved.get_device().as_playback().set_real_time(False)
             profile = self._pipeline.start(stream_config)
         except RuntimeError as exc:
             raise ConnectionLostError(f"cannot start {self._describe()}: {self._start_failure(exc)}") from exc
@@ -113,7 +118,6 @@ class RealSenseCamera:
         """Check a started stream (a recording's serial), read its depth scale and intrinsics, and warm up."""
         if self.recording is not None:
             self._playback = profile.get_device().as_playback()
-            self._playback.set_real_time(False)  # deliver as fast as the camera reads, not at the recorded pace
             serial = profile.get_device().get_info(rs.camera_info.serial_number)
             if serial != self.config.serial:
                 raise ConnectionLostError(f"camera {self.name}: recording {self.recording} holds camera {serial}, "
