@@ -4,6 +4,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import replace
 
@@ -192,28 +193,43 @@ def test_a_stream_that_stops_raises_a_named_error_within_the_deadline(config, id
         camera.stop()
 
 
-def test_offline_replay_of_a_recorded_scene_through_perception(config, tmp_path_factory, tmp_path):
-    """The feature: a cell config whose cameras name recordings, opened without the robot (dry run), captured and
-    perceived as a live cell would be. The mesh matches what perception makes of the twin's own frames."""
-    from hardware.cell import RealCell
+def test_offline_replay_of_a_recorded_scene_through_perception(config, tmp_path_factory, tmp_path, capsys):
+    """The feature: `python -m hardware replay CONFIG` with cameras that name recordings opens them without the
+    robot (a dry-run cell), captures and perceives as a live cell would. The mesh matches what perception makes of
+    the twin's own frames, and the box."""
+    from hardware.__main__ import main
     from seggrasp.perception import perceive_object
 
     frames, bounds = twin_scene(tmp_path_factory, (320, 240), noise=True)
     serials = [camera.serial for camera in config.cameras]
-    paths = write_recordings(dict(zip(serials, frames)), tmp_path / "recordings")
+    write_recordings(dict(zip(serials, frames)), tmp_path / "recordings")
     data = yaml.safe_load(EXAMPLE_CONFIG.read_text())
-    for entry, frame in zip(data["cameras"], frames):
+    for entry in data["cameras"]:
         entry.update(width=320, height=240, recording=f"recordings/{entry['serial']}.db3")
     data["calibration"] = {"T_world_cam": {s: f.T_world_cam.tolist() for s, f in zip(serials, frames)}}
     (tmp_path / "cell.yaml").write_text(yaml.safe_dump(data))
-    assert all(p.is_file() for p in paths.values())
 
-    cell = RealCell.from_config(tmp_path / "cell.yaml", dry_run=True)
+    assert main(["replay", str(tmp_path / "cell.yaml"), "--json", "--mesh", str(tmp_path / "object.ply")]) == 0
+    seen = json.loads(capsys.readouterr().out)
+    assert [c["recording"] for c in seen["cameras"]] == [str(tmp_path / "recordings" / f"{s}.db3") for s in serials]
+    assert all(c["depth_fraction"] > 0.5 for c in seen["cameras"])
+    twin_mesh = perceive_object(frames, load_workspace(tmp_path / "cell.yaml"))
+    replayed = np.array(seen["object"]["bounds"])
+    assert np.abs(replayed - twin_mesh.bounds).max() < 0.01
+    assert np.abs(replayed - bounds).max() < 0.02
+    np.testing.assert_allclose(trimesh.load(tmp_path / "object.ply").bounds, replayed, atol=1e-4)
+
+    (tmp_path / "recordings" / f"{serials[1]}.db3").unlink()
+    assert main(["replay", str(tmp_path / "cell.yaml")]) == 1
+    assert f"recordings/{serials[1]}.db3 cannot be read (No such file or directory)" in capsys.readouterr().err
+
+
+def load_workspace(path):
+    """The perception workspace of a cell config, as the dry-run cell builds it."""
+    from hardware.cell import RealCell
+
+    cell = RealCell.from_config(path, dry_run=True, with_cameras=False)
     try:
-        replayed = cell.capture()
-        workspace = cell.workspace
+        return cell.workspace
     finally:
         cell.close()
-    twin_mesh, replayed_mesh = perceive_object(frames, workspace), perceive_object(replayed, workspace)
-    assert np.abs(replayed_mesh.bounds - twin_mesh.bounds).max() < 0.01
-    assert np.abs(replayed_mesh.bounds - bounds).max() < 0.02
