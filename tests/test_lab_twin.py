@@ -97,7 +97,7 @@ def test_pressing_into_the_table_is_a_protective_stop(mug):
     arm = mug.arm
     arm.move_linear(down_at(0.3, 0.2, -0.05), 0.1, 0.5)
     run(mug)
-    assert arm.safety_status == "protective_stop" and "N on the tool above" in arm.stop_reason
+    assert arm.safety_status == "protective_stop" and "N on the table, above the" in arm.stop_reason
     assert arm.actual_tcp_pose()[2] > 0.0  # halted on the table, not at the target below it
     arm.move_joints(HOME_Q_WIRE, 1.0, 1.0)
     assert not arm.is_moving()  # a stopped arm starts nothing

@@ -13,9 +13,9 @@ Motion. A moveJ, moveL or stop is planned by the controller's kinematic model (`
 started at the arm's actual joints: trapezoidal profiles, inverse kinematics, joint limits, a safety plane at the
 table top) and tracked every physics step by the UR5's joint servos (`UR5Arm._command`, as the twin's own
 motions); a motion ends when the arm has settled on its end. The arm halts where it is on a safety stop: one the
-controller sets, or a protective stop of its own when a link of the arm (upper arm to wrist) touches the table, or
-when the net force of table and object on the robot stays above `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` physics
-steps (the fingers' own squeeze cancels in that sum).
+controller sets, or a protective stop of its own when, during a motion, a link of the arm (upper arm to wrist)
+touches the table, or the robot presses on the table, directly or through the object, with more than
+`PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` physics steps.
 
 Fingers. A request closing the fingers uses the twin's closing drive (`Robotiq2F85.command_close` at the
 requested speed and force, then its squeeze once both slides stall, as `close_until_stall`); an opening request
@@ -57,8 +57,8 @@ log = logging.getLogger(__name__)
 
 #: Where the twin's URDF `base_link` sits in its world, the RTDE base frame (module docstring).
 T_WORLD_BASELINK = np.linalg.inv(T_BASELINK_DHBASE)
-#: Net force (N) of table and object on the robot above which the emulated controller stops the arm: the tool
-#: force limit of the emulated safety configuration.
+#: Force (N) the robot may press on the table, directly or through the object, before the emulated controller
+#: stops the arm: the tool force limit of the emulated safety configuration.
 PROTECTIVE_FORCE = 150.0
 #: Physics steps in a row the force must stay above the limit (one step's solver spike does not stop the arm).
 PROTECTIVE_STEPS = 3
@@ -188,7 +188,7 @@ class TwinArm:
             return
         robot._command(np.asarray(reference.q), np.asarray(reference.qd))  # the UR5's servos, as the twin's moves
 
-    def after_step(self, robot: UR5Arm, table: int, obj: int) -> None:
+    def after_step(self, robot: UR5Arm, table: int, obj: int, weight: float) -> None:
         """Read the joints, end a motion once the arm has settled on its end, and watch for a protective stop."""
         states = robot.world.client.getJointStates(robot.body, robot.arm_joints)
         self._q = np.array([s[0] for s in states])
@@ -202,8 +202,8 @@ class TwinArm:
                 self._reference, self._moving = None, False
         else:
             self._settling = 0.0
-        if self.safety_status == "normal":
-            reason = self._collision(robot, table, obj)
+        if self.safety_status == "normal" and reference is not None:  # the controller watches its own motions
+            reason = self._collision(robot, table, obj, weight)
             if reason:
                 self._protective_stop(robot, reason)
 
@@ -212,25 +212,23 @@ class TwinArm:
         log.warning("protective stop: %s", reason)
         self._halt(robot)
 
-    def _collision(self, robot: UR5Arm, table: int, obj: int) -> str:
-        """Why the controller would stop the arm: a link of the arm on the table, or the net force of table and
-        object on the robot above `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` steps; "" otherwise."""
+    def _collision(self, robot: UR5Arm, table: int, obj: int, weight: float) -> str:
+        """Why the controller would stop the arm: a link of the arm on the table, or the robot pressing down on the
+        table (directly, or through the object: the table's push on it beyond its `weight`) with more than
+        `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` steps; "" otherwise. (The contact forces between the fingers and
+        the object do not sum to what the arm feels in PyBullet: the squeeze leaves tens of newtons of residue.)"""
         c = robot.world.client
         arm_links = set(range(robot.arm_joints[1], robot.gripper.base_link))  # upper arm to wrist 3
-        force = np.zeros(3)
-        for other in (table, obj):
-            for point in c.getContactPoints(bodyA=robot.body, bodyB=other):
-                if other == table and point[3] in arm_links:
-                    name = c.getJointInfo(robot.body, point[3])[12].decode()
-                    return f"arm-table collision ({name} touches the table)"
-                # the force on the robot: normal (on B, towards A) and both friction directions
-                force += (point[9] * np.asarray(point[7]) + point[10] * np.asarray(point[11])
-                          + point[12] * np.asarray(point[13]))
-        magnitude = float(np.linalg.norm(force))
-        self._over_force = self._over_force + 1 if magnitude > PROTECTIVE_FORCE else 0
+        press = 0.0
+        for point in c.getContactPoints(bodyA=robot.body, bodyB=table):
+            if point[3] in arm_links:
+                return f"arm-table collision ({c.getJointInfo(robot.body, point[3])[12].decode()} touches the table)"
+            press += point[9]
+        press += max(0.0, sum(point[9] for point in c.getContactPoints(bodyA=obj, bodyB=table)) - weight)
+        self._over_force = self._over_force + 1 if press > PROTECTIVE_FORCE else 0
         if self._over_force >= PROTECTIVE_STEPS:
             self._over_force = 0
-            return f"force {magnitude:.0f} N on the tool above the {PROTECTIVE_FORCE:.0f} N limit"
+            return f"the tool presses {press:.0f} N on the table, above the {PROTECTIVE_FORCE:.0f} N limit"
         return ""
 
     def _halt(self, robot: UR5Arm) -> None:
@@ -366,6 +364,12 @@ class TwinScene:
         self.place(object_id, seed)
 
     @property
+    def gripper_options(self) -> dict:
+        """How `python -m sim.lab serve` starts the URCap socket in front of `fingers`: the twin's clock moves
+        them, not the server's."""
+        return {"step_period": None}
+
+    @property
     def gripper(self) -> Robotiq2F85:
         return self.cell.robot.gripper
 
@@ -393,21 +397,23 @@ class TwinScene:
             self.joint_limits = _joint_limits(robot)
             self._placed = {"object": object_id, "seed": seed,
                             "T_world_obj": np.round(cell.object_mesh()[1], 9).tolist()}
-            paths = {}
             if self.recordings is not None:
                 self._frames = dict(zip(CAMERA_SERIALS, cell.capture(), strict=True))
-                paths = write_recordings(self._frames, self.recordings)
             if self._clock is not None:
                 self._clock.resync(time.monotonic() - started)
-        return dict(self._placed, recordings={serial: str(path) for serial, path in paths.items()})
+            placed, frames = dict(self._placed), dict(self._frames)
+        # written with the physics running again: the recordings take a second or more per camera
+        paths = {} if self.recordings is None else write_recordings(frames, self.recordings)
+        return dict(placed, recordings={serial: str(path) for serial, path in paths.items()})
 
     def stop_cameras(self) -> dict:
         """The `camera_stop` fault: each camera's recording is replaced by one frame set, so the client's stream
         stops during its next warm-up."""
         with self.lock:
-            if not self._frames:
-                raise ValueError("camera_stop: this twin renders no cameras (it has no recordings folder)")
-            paths = write_recordings(self._frames, self.recordings, n_frames=1)
+            frames = dict(self._frames)
+        if not frames:
+            raise ValueError("camera_stop: this twin renders no cameras (it has no recordings folder)")
+        paths = write_recordings(frames, self.recordings, n_frames=1)
         return {"recordings": {serial: str(path) for serial, path in paths.items()}}
 
     def handlers(self) -> dict:
@@ -416,7 +422,8 @@ class TwinScene:
             "place": lambda request: self.place(request.get("object"), request.get("seed", 0)),
             "truth": lambda request: self.truth(),
             "camera_stop": lambda request: self.stop_cameras(),
-            "twin_clock": lambda request: self.stats(),
+            "twin_state": lambda request: {"safety_status": self.arm.safety_status,
+                                           "stop_reason": self.arm.stop_reason, **self.stats()},
         }
 
     def truth(self) -> dict:
@@ -466,7 +473,8 @@ class TwinScene:
             self.fingers.before_step(robot.gripper)
             cell.world.step()
             self.sim_time = now
-            self.arm.after_step(robot, cell.world.table_id, cell.object_body)
+            self.arm.after_step(robot, cell.world.table_id, cell.object_body,
+                                cell.current_object.mass * -cell.world.physics.gravity)
             self.fingers.after_step(robot.gripper)
 
     def start(self) -> None:
@@ -565,7 +573,7 @@ class Clock(threading.Thread):
 def twin_models(object_id: str, seed: int = 0, recordings: str | Path | None = None) -> TwinScene:
     """The twin for `python -m sim.lab serve` (without --kinematic): a `TwinScene` with `object_id` placed at
     `seed`, its recordings in `recordings` (default `RECORDINGS`), and the control commands `place`, `truth`,
-    `camera_stop` and `twin_clock` registered. The caller starts and closes it."""
+    `camera_stop` and `twin_state` (the arm's safety status, why it last stopped, the clock's account) registered. The caller starts and closes it."""
     scene = TwinScene(object_id, seed, RECORDINGS if recordings is None else recordings)
     for name, handler in scene.handlers().items():
         register(name, handler)
