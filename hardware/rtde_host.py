@@ -46,67 +46,72 @@ class ProbeError(ConnectionError):
     """The controller's RTDE server did not answer the probe as RTDE does."""
 
 
-def _send(sock: socket.socket, kind: bytes, payload: bytes = b"") -> None:
-    sock.sendall(struct.pack(">HB", 3 + len(payload), kind[0]) + payload)
+class _Wire:
+    """One RTDE connection of the probe, with one deadline for everything read on it."""
 
+    def __init__(self, sock: socket.socket, deadline: float) -> None:
+        self.sock, self.deadline = sock, deadline
+        self.pending = 0  # bytes read of a package not yet complete
 
-def _read(sock: socket.socket, size: int, deadline: float, waiting_for: str) -> bytes:
-    data = b""
-    while len(data) < size:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            raise ProbeError(f"waited {PROBE_TIMEOUT:g} s for {waiting_for} in vain")
-        sock.settimeout(remaining)
-        try:
-            chunk = sock.recv(size - len(data))
-        except socket.timeout:
-            continue
-        if not chunk:
-            raise ProbeError(f"the controller closed the connection while the probe waited for {waiting_for}")
-        data += chunk
-    return data
+    def send(self, kind: bytes, payload: bytes = b"") -> None:
+        self.sock.sendall(struct.pack(">HB", 3 + len(payload), kind[0]) + payload)
 
+    def read(self, size: int, missing: str) -> bytes:
+        data = b""
+        while len(data) < size:
+            remaining = self.deadline - time.monotonic()
+            if remaining <= 0:
+                got = self.pending + len(data)
+                noise = f" (it sent {got} bytes of an incomplete package)" if got else ""
+                raise ProbeError(f"{missing} within {PROBE_TIMEOUT:g} s{noise}")
+            self.sock.settimeout(remaining)
+            try:
+                chunk = self.sock.recv(size - len(data))
+            except socket.timeout:
+                continue
+            if not chunk:
+                raise ProbeError(f"the controller closed the connection: {missing}")
+            data += chunk
+        return data
 
-def _expect(sock: socket.socket, kind: bytes, deadline: float, waiting_for: str) -> bytes:
-    """The payload of the next package of type `kind` (text messages skipped)."""
-    while True:
-        size, received = struct.unpack(">HB", _read(sock, 3, deadline, waiting_for))
-        if size < 3:
-            raise ProbeError(f"the reply to the probe is not RTDE (package size {size}) while waiting for "
-                             f"{waiting_for}")
-        payload = _read(sock, size - 3, deadline, waiting_for)
-        if bytes([received]) == kind:
-            return payload
-        if bytes([received]) != _MESSAGE:
-            raise ProbeError(f"the reply to the probe is not RTDE (package type {received}, expected "
-                             f"{kind[0]} '{kind.decode()}') while waiting for {waiting_for}")
+    def expect(self, kind: bytes, missing: str) -> bytes:
+        """The payload of the next package of type `kind` (text messages skipped)."""
+        while True:
+            header = self.read(3, missing)
+            size, received = struct.unpack(">HB", header)
+            if size < 3:
+                raise ProbeError(f"what it sent is not RTDE (a package of {size} bytes): {missing}")
+            self.pending = 3
+            payload = self.read(size - 3, missing)
+            self.pending = 0
+            if bytes([received]) == kind:
+                return payload
+            if bytes([received]) != _MESSAGE:
+                raise ProbeError(f"what it sent is not RTDE (package type {received}, expected {kind[0]}): {missing}")
 
 
 def probe(host: str) -> tuple[int, int, int, int]:
     """The controller version (major, minor, bugfix, build) after checking that RTDE negotiates protocol 2,
     sets up an output recipe, starts and delivers a data package, all within `PROBE_TIMEOUT`."""
-    deadline = time.monotonic() + PROBE_TIMEOUT
     try:
         with socket.create_connection((host, RTDE_PORT), timeout=PROBE_TIMEOUT) as sock:
-            _send(sock, _PROTOCOL, struct.pack(">H", 2))
-            if _expect(sock, _PROTOCOL, deadline, "an answer to the protocol request")[:1] != b"\x01":
+            wire = _Wire(sock, time.monotonic() + PROBE_TIMEOUT)
+            wire.send(_PROTOCOL, struct.pack(">H", 2))
+            if wire.expect(_PROTOCOL, "no answer to the protocol request")[:1] != b"\x01":
                 raise ProbeError("the controller refused RTDE protocol version 2")
-            _send(sock, _VERSION)
-            payload = _expect(sock, _VERSION, deadline, "the controller version")
+            wire.send(_VERSION)
+            payload = wire.expect(_VERSION, "no controller version")
             if len(payload) < 16:
                 raise ProbeError(f"the controller version reply has {len(payload)} bytes, not 16")
             version = struct.unpack(">IIII", payload[:16])
-            _send(sock, _OUTPUTS, struct.pack(">d", 10.0) + b"timestamp")
-            if _expect(sock, _OUTPUTS, deadline, "an answer to the output recipe")[1:] != b"DOUBLE":
+            wire.send(_OUTPUTS, struct.pack(">d", 10.0) + b"timestamp")
+            if wire.expect(_OUTPUTS, "no answer to the output recipe")[1:] != b"DOUBLE":
                 raise ProbeError("the controller did not set up an output recipe with its timestamp")
-            _send(sock, _START)
-            if _expect(sock, _START, deadline, "an answer to the start request")[:1] != b"\x01":
+            wire.send(_START)
+            if wire.expect(_START, "no answer to the start request")[:1] != b"\x01":
                 raise ProbeError("the controller refused to start the RTDE data stream")
-            _expect(sock, _DATA, deadline, "a data package after the stream started (it "
-                    "accepts RTDE connections but sends no data)")
-    except ProbeError as exc:
-        raise ProbeError(f"RTDE at {host}:{RTDE_PORT}: {exc}") from None
-    except OSError as exc:
+            wire.expect(_DATA, "it answers the RTDE handshake but sent no data package")
+    except (ProbeError, OSError) as exc:
         raise ProbeError(f"RTDE at {host}:{RTDE_PORT}: {exc}") from None
     return version
 
