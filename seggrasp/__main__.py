@@ -17,12 +17,14 @@ import logging
 import signal
 import sys
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
 from seggrasp.decompose import MAX_COACD_FACES, RUN_TIMEOUT_S, SweepTimeout
-from seggrasp.detect import DETECTOR_NAMES, make_detector
+from seggrasp.decompose.config import MAX_SEED
+from seggrasp.detect import DETECTOR_NAMES, check_weights, make_detector
 from seggrasp.fusion import REFINE_MODES
 from seggrasp.io import atomic_save_npy, atomic_write_json
 from seggrasp.labels import PartLabels, find_prompt, read_labels, write_labels
@@ -36,6 +38,20 @@ EXIT_INTERRUPTED = 130
 MAX_SEGMENT_FACES = 5_000_000
 
 
+def bounded_int(low: int, high: int) -> Callable[[str], int]:
+    """An argparse type: a whole number in [low, high], else one sentence naming the range."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be a whole number {low}..{high}, got {text!r}") from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"must be {low}..{high}, got {value}")
+        return value
+
+    return parse
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m seggrasp", description=__doc__.splitlines()[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -46,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="part name; repeat for every part (label k = k-th prompt)")
     seg.add_argument("--detector", choices=DETECTOR_NAMES, default="simulated",
                      help="box detector (default: simulated, which needs --labels)")
-    seg.add_argument("--weights", help="weights of grounding-dino/owlv2: a local folder or a hub id")
+    seg.add_argument("--weights", help="weights of grounding-dino/owlv2: a local folder, or a hub id (transformers "
+                                       "downloads it into the hub cache; without a download, HF_HUB_OFFLINE set or no "
+                                       "network, only a hub id already in the cache is taken, others are refused at once)")
     seg.add_argument("--preset", choices=("perfect", "typical", "hard"), default="typical",
                      help="error model of the simulated detector (default: typical)")
     seg.add_argument("--labels", type=Path, metavar="GT.json",
@@ -69,7 +87,10 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("--coacd-timeout", type=float, metavar="SECONDS",
                      help=f"time budget of one CoACD run of the sweep in CPU seconds (default {RUN_TIMEOUT_S['fast']:.0f} s fast, "
                           f"{RUN_TIMEOUT_S['reference']:.0f} s reference); a run over it is dropped with a warning")
-    seg.add_argument("--seed", type=int, default=0, help="seed of the camera rig, detector and decomposition")
+    seg.add_argument("--seed", type=bounded_int(0, MAX_SEED), default=0,
+                     help=f"seed of the camera rig, detector and decomposition, 0..{MAX_SEED} (default 0). The bundled "
+                          "decompositions of the twin (assets/decompositions/) are for seed 0: with another seed the "
+                          "sweep runs CoACD cold (much slower; its runs are then cached in --cache-dir)")
     seg.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
     seg.add_argument("-q", "--quiet", action="store_true", help="no progress messages, only warnings and errors")
     seg.add_argument("-v", "--verbose", action="store_true", help="debug messages too")
@@ -118,6 +139,7 @@ def run_segment(args: argparse.Namespace) -> dict:
 
     prompts = check_prompts(args.prompts)
     check_output_folder(args.out)
+    check_weights(args.detector, args.weights)  # before any work: an unreachable hub id fails in a moment
     log = logging.getLogger("seggrasp.cli")  # __name__ is "__main__" under python -m
     if args.mesh.is_file():
         log.info("loading %s (%.1f MB)", args.mesh, args.mesh.stat().st_size / 1e6)
@@ -137,6 +159,9 @@ def run_segment(args: argparse.Namespace) -> dict:
         from seggrasp.decompose import DecompositionConfig
 
         decomposition = DecompositionConfig(mode=args.decomposition, seed=args.seed, run_timeout=args.coacd_timeout)
+        if args.seed != 0:
+            log.info("decomposition seed %d: the bundled twin decompositions are for seed 0, so the sweep may run "
+                     "CoACD cold (cached afterwards)", args.seed)
     config = SegmentationConfig(n_views=args.views, image_size=args.image_size, refine=args.refine,
                                 anchor=args.anchor, decomposition=decomposition, cache_dir=args.cache_dir,
                                 workers=args.workers, seed=args.seed)

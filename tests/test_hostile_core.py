@@ -280,3 +280,114 @@ def test_gym_after_a_failed_first_reset_refuses_every_step_before_it_moves(made_
         with pytest.raises(RuntimeError, match="first reset\\(\\) failed.*make a new environment"):
             env.step(ACTION)
     assert executed == []
+
+
+# ------------------------------------------------------------------------------------------------ command lines
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["generate", "--seed", "-1", "--only", MUG, "--no-collision"], "argument --seed: must be 0..2147483647, got -1"),
+    (["decompose", "--seed", "-1", "--only", MUG], "argument --seed: must be 0..2147483647, got -1"),
+    (["gallery", "--columns", "0"], "argument --columns: must be 1..36, got 0"),
+    (["gallery", "--columns", "x"], "argument --columns: must be a whole number 1..36, got 'x'"),
+])
+def test_assets_cli_refuses_a_negative_seed_or_zero_columns_in_one_sentence(argv, message, capsys, monkeypatch,
+                                                                            tmp_path: Path) -> None:
+    import seggrasp.decompose as decompose
+    from assets.__main__ import main as assets_main
+
+    monkeypatch.setattr(decompose, "ASSET_CACHE_DIR", tmp_path)  # were it accepted, nothing lands in assets/
+    if argv[0] == "generate":
+        argv = [*argv, "--root", str(tmp_path)]
+    else:
+        argv = [*argv, "--out", str(tmp_path / "gallery.png")] if argv[0] == "gallery" else argv
+    with pytest.raises(SystemExit) as stopped:
+        assets_main(argv)
+    assert stopped.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+
+
+def test_segment_cli_refuses_a_negative_seed_and_explains_seeds_in_help(capsys) -> None:
+    with pytest.raises(SystemExit):
+        seggrasp_main(["segment", "m.obj", "--prompt", "a", "--out", "o", "--seed", "-1"])
+    assert "argument --seed: must be 0..2147483647, got -1" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        seggrasp_main(["segment", "--help"])
+    assert "decompositions of the twin (assets/decompositions/) are for seed 0" in " ".join(capsys.readouterr().out.split())
+
+
+def test_assets_decompose_force_recomputes_the_bundled_runs(monkeypatch, tmp_path: Path, capsys) -> None:
+    """`assets decompose` kept every bundled run and had no way to redo them: --force recomputes and replaces."""
+    import seggrasp.decompose as decompose
+    from assets.__main__ import main as assets_main
+    from seggrasp.decompose import DecompositionConfig, workers
+    from seggrasp.decompose.sweep import sweep_cache_keys
+
+    model = load_asset("knife_chef")
+    bundled = tmp_path / "bundled"
+    bundled.mkdir()
+    monkeypatch.setattr(decompose, "ASSET_CACHE_DIR", bundled)
+    calls = tmp_path / "calls.txt"
+
+    def halves(vertices, faces, threshold, params):  # runs in forked workers: count calls in a file
+        with open(calls, "a") as handle:
+            handle.write(f"{threshold}\n")
+        low, high = np.min(vertices, axis=0), np.max(vertices, axis=0)
+        middle = (low + high) / 2
+        return [trimesh.creation.box(bounds=[low, [middle[0], high[1], high[2]]]).vertices,
+                trimesh.creation.box(bounds=[[middle[0], low[1], low[2]], high]).vertices]
+
+    monkeypatch.setattr(workers, "run_coacd_hulls", halves)
+    keys = set(sweep_cache_keys(model.mesh, DecompositionConfig()))
+    stale = sorted(keys)[0]
+    np.savez(bundled / f"{stale}.npz", part_of_face=np.zeros(len(model.mesh.faces), dtype=np.uint8))
+    assert assets_main(["decompose", "--only", "knife_chef", "--force", "--workers", "1"]) == 0
+    written = {p.stem for p in bundled.glob("*.npz")}
+    assert written and written <= keys and calls.read_text().count("\n") == len(written)
+    if stale in written:  # recomputed: two halves now, not the planted single part
+        assert np.load(bundled / f"{stale}.npz")["part_of_face"].max() == 1
+    assert list(bundled.glob("decompose-*")) == []  # the temporary folder is gone
+    calls.unlink()
+    assert assets_main(["decompose", "--only", "knife_chef", "--workers", "1"]) == 0  # without --force: kept
+    assert not calls.exists()
+    assert "knife_chef:" in capsys.readouterr().out
+
+
+def _segment_in_a_network_namespace(argv: list[str], tmp_path: Path, timeout: float) -> tuple[int, str, float]:
+    """`python -m seggrasp segment ARGV` with no network (`unshare -n`) and no HF_HUB_OFFLINE: exit code, stderr,
+    seconds."""
+    import shutil
+    import subprocess
+    import sys
+    import time
+
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-n", "true"]).returncode != 0:
+        pytest.skip("needs unshare -n (a network namespace) to take the network away")
+    env = {k: v for k, v in os.environ.items() if k not in ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE")}
+    env["HF_HOME"] = str(tmp_path / "hf_home")  # an empty hub cache
+    started = time.perf_counter()
+    done = subprocess.run(["unshare", "-n", sys.executable, "-m", "seggrasp", "segment", *argv], env=env,
+                          capture_output=True, text=True, timeout=timeout)
+    return done.returncode, done.stderr, time.perf_counter() - started
+
+
+def test_hub_id_without_network_is_refused_at_once(mug, tmp_path: Path) -> None:
+    """Issue 34: a hub id with no network tried the hub for about 50 s before failing."""
+    code, err, seconds = _segment_in_a_network_namespace(
+        [str(mug.mesh_path), "--prompt", "handle", "--detector", "owlv2", "--weights",
+         "google/owlv2-base-patch16-ensemble", "--out", str(tmp_path / "out")], tmp_path, timeout=30)
+    assert code == 2 and seconds < 15
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "nothing can be downloaded (huggingface.co:443 cannot be reached" in lines[0]
+
+
+def test_local_weights_folder_works_without_network(mug, tmp_path: Path) -> None:
+    from tiny_hf_models import build_tiny_owlv2
+
+    weights = build_tiny_owlv2(tmp_path / "owlv2")
+    code, err, _ = _segment_in_a_network_namespace(
+        [str(mug.mesh_path), "--prompt", "handle", "--detector", "owlv2", "--weights", str(weights), "--views", "2",
+         "--image-size", "64", "--refine", "none", "--out", str(tmp_path / "out"), "-q"], tmp_path, timeout=120)
+    assert code == 0, err
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["detector"].lower().startswith("owl")

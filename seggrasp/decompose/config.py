@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import numbers
 from dataclasses import dataclass
 from pathlib import Path
 
 MODES = ("fast", "reference")
+#: Seeds are whole numbers 0 .. 2**31 - 1 (what CoACD's and numpy's generators take).
+MAX_SEED = 2**31 - 1
 #: The paper's sweep: 0.01..0.25 in steps of 0.01.
 PAPER_THRESHOLDS: tuple[float, ...] = tuple(round(0.01 * k, 2) for k in range(1, 26))
 #: Log levels CoACD's C++ side accepts; anything else aborts the interpreter inside `coacd.set_log_level`.
@@ -107,6 +110,9 @@ class DecompositionConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"unknown decomposition mode {self.mode!r}; use one of {MODES}")
+        whole = isinstance(self.seed, numbers.Integral) and not isinstance(self.seed, bool)
+        if not whole or not 0 <= self.seed <= MAX_SEED:
+            raise ValueError(f"the decomposition seed must be a whole number 0..{MAX_SEED}, got {self.seed!r}")
         if isinstance(self.coacd, dict):
             object.__setattr__(self, "coacd", tuple(sorted(self.coacd.items())))
         if self.thresholds is None:

@@ -12,6 +12,18 @@ from seggrasp.detect.base import Detections, Detector
 from seggrasp.labels import PartLabels
 
 DETECTOR_NAMES = ("simulated", "grounding-dino", "owlv2")
+#: The transformers detectors: (model name in messages, example hub id).
+HF_MODELS = {"grounding-dino": ("Grounding DINO", "IDEA-Research/grounding-dino-tiny"),
+             "owlv2": ("OWLv2", "google/owlv2-base-patch16-ensemble")}
+
+
+def check_weights(name: str, weights: str | os.PathLike | None) -> None:
+    """For a transformers detector, `seggrasp.detect.hf_common.resolve_weights` without importing torch (a missing
+    folder, or a hub id that cannot be downloaded, fails in a moment); nothing for the others."""
+    if name in HF_MODELS:
+        from seggrasp.detect.hf_common import resolve_weights
+
+        resolve_weights(weights, *HF_MODELS[name])
 
 
 def make_detector(
@@ -43,4 +55,4 @@ def make_detector(
     raise ValueError(f"unknown detector {name!r}; choose one of {', '.join(DETECTOR_NAMES)}")
 
 
-__all__ = ["DETECTOR_NAMES", "Detections", "Detector", "make_detector"]
+__all__ = ["DETECTOR_NAMES", "HF_MODELS", "Detections", "Detector", "check_weights", "make_detector"]

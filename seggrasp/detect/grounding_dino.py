@@ -22,6 +22,7 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from seggrasp.detect import HF_MODELS
 from seggrasp.detect.base import Detections
 from seggrasp.detect.hf_common import (
     batches,
@@ -37,8 +38,7 @@ from seggrasp.views import View
 
 logger = logging.getLogger(__name__)
 
-MODEL = "Grounding DINO"
-EXAMPLE_HUB_ID = "IDEA-Research/grounding-dino-tiny"
+MODEL, EXAMPLE_HUB_ID = HF_MODELS["grounding-dino"]
 
 
 @dataclass

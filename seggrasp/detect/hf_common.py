@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import re
+import socket
+import threading
+import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence, TypeVar
@@ -34,12 +38,56 @@ def _how_to_provide(model: str, example_hub_id: str) -> str:
 _HUB_ID = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*(/[A-Za-z0-9][A-Za-z0-9_.-]*)?$")
 
 
+#: Seconds the hub may take to accept a TCP connection before it counts as unreachable (DNS included).
+HUB_PROBE_TIMEOUT_S = 1.5
+_OFFLINE_VALUES = {"1", "true", "yes", "on"}
+
+
+def hub_offline_reason() -> str | None:
+    """Why nothing can be downloaded from the Hugging Face hub, or None when it can: HF_HUB_OFFLINE or
+    TRANSFORMERS_OFFLINE set, or the hub endpoint (HF_ENDPOINT, through HTTPS_PROXY if set) refusing a connection
+    within HUB_PROBE_TIMEOUT_S (no network). The probe runs once per process."""
+    for variable in ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE"):
+        if os.environ.get(variable, "").strip().lower() in _OFFLINE_VALUES:
+            return f"{variable}=1"
+    return _probe_hub(os.environ.get("HF_ENDPOINT", "https://huggingface.co"),
+                      os.environ.get("HTTPS_PROXY") or os.environ.get("https_proxy") or "")
+
+
+@functools.lru_cache(maxsize=None)
+def _probe_hub(endpoint: str, proxy: str) -> str | None:
+    """None if a TCP connection to the endpoint (or the proxy) opens within HUB_PROBE_TIMEOUT_S, else why not."""
+    target = urllib.parse.urlsplit(proxy or endpoint)
+    host, port = target.hostname or "", target.port or (443 if target.scheme == "https" else 80)
+    outcome: list[str | None] = []
+
+    def connect() -> None:  # in a thread: name resolution has no timeout of its own
+        try:
+            socket.create_connection((host, port), timeout=HUB_PROBE_TIMEOUT_S).close()
+            outcome.append(None)
+        except OSError as exc:
+            outcome.append(f"{host}:{port} cannot be reached: {exc.strerror or exc}")
+
+    thread = threading.Thread(target=connect, daemon=True)
+    thread.start()
+    thread.join(HUB_PROBE_TIMEOUT_S + 0.5)
+    return outcome[0] if outcome else f"{host}:{port} did not answer within {HUB_PROBE_TIMEOUT_S} s"
+
+
+def _in_hub_cache(repo_id: str) -> bool:
+    """Whether the local hub cache holds the config.json of `repo_id` (then it loads without a download)."""
+    from huggingface_hub import try_to_load_from_cache
+
+    return isinstance(try_to_load_from_cache(repo_id, "config.json"), str)
+
+
 def resolve_weights(weights: str | os.PathLike | None, model: str, example_hub_id: str) -> str:
     """Check a weights argument and return what `from_pretrained` should receive.
 
     An existing folder must contain config.json. A string shaped like a hub id ("name" or "owner/name") that is not
-    a local folder is passed on as a hub id; anything else must be an existing folder. Raises `WeightsNotFoundError`
-    with instructions otherwise.
+    a local folder is passed on as a hub id if the hub can be used (`hub_offline_reason`) or its files are in the
+    local hub cache; without either it is refused at once (a download would only time out). Anything else must be an
+    existing folder. Raises `WeightsNotFoundError` with instructions otherwise.
     """
     if weights is None or str(weights).strip() == "":
         raise WeightsNotFoundError(f"no weights given for {model}. " + _how_to_provide(model, example_hub_id))
@@ -59,7 +107,20 @@ def resolve_weights(weights: str | os.PathLike | None, model: str, example_hub_i
         raise WeightsNotFoundError(
             f"{model} weights folder {path} does not exist. " + _how_to_provide(model, example_hub_id)
         )
+    offline = hub_offline_reason()
+    if offline is not None and not _in_hub_cache(str(weights)):
+        raise WeightsNotFoundError(
+            f"{model} weights {str(weights)!r}: no such local folder, not in the local hub cache, and nothing can be "
+            f"downloaded ({offline}); give a local weights folder (config.json and the model files, as "
+            "save_pretrained writes them)"
+        )
     return str(weights)
+
+
+def local_files_only(source: str) -> bool:
+    """Whether `from_pretrained(source)` must not try the hub: a hub id while `hub_offline_reason` says no download
+    is possible (the files then come from the local hub cache, without waiting for the network)."""
+    return not Path(source).is_dir() and hub_offline_reason() is not None
 
 
 def load_pretrained(loader: Callable[[str], T], source: str, model: str, example_hub_id: str, part: str) -> T:
@@ -97,12 +158,15 @@ def load_detector(
     if batch_size < 1:
         raise ValueError(f"batch_size must be at least 1, got {batch_size}")
     source = resolve_weights(weights, model, example_hub_id)
+    options = {"local_files_only": True} if local_files_only(source) else {}
     loaded = LoadedDetector(
         source=source,
-        image_processor=load_pretrained(image_processor_cls.from_pretrained, source, model, example_hub_id,
-                                        "image processor"),
-        tokenizer=load_pretrained(AutoTokenizer.from_pretrained, source, model, example_hub_id, "tokenizer"),
-        model=load_pretrained(model_cls.from_pretrained, source, model, example_hub_id, "model"),
+        image_processor=load_pretrained(functools.partial(image_processor_cls.from_pretrained, **options), source,
+                                        model, example_hub_id, "image processor"),
+        tokenizer=load_pretrained(functools.partial(AutoTokenizer.from_pretrained, **options), source, model,
+                                  example_hub_id, "tokenizer"),
+        model=load_pretrained(functools.partial(model_cls.from_pretrained, **options), source, model,
+                              example_hub_id, "model"),
         device=torch.device(device),
     )
     loaded.model.to(loaded.device).eval()

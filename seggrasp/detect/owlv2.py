@@ -16,6 +16,7 @@ import numpy as np
 import torch
 from scipy.special import expit
 
+from seggrasp.detect import HF_MODELS
 from seggrasp.detect.base import Detections
 from seggrasp.detect.hf_common import (
     batches,
@@ -31,8 +32,7 @@ from seggrasp.views import View
 
 logger = logging.getLogger(__name__)
 
-MODEL = "OWLv2"
-EXAMPLE_HUB_ID = "google/owlv2-base-patch16-ensemble"
+MODEL, EXAMPLE_HUB_ID = HF_MODELS["owlv2"]
 
 
 class OwlV2:
