@@ -34,7 +34,7 @@ log = logging.getLogger("sim.lab")
 
 def add_serve_options(parser: argparse.ArgumentParser) -> None:
     """The options of `serve` (also accepted by `run`, which passes them on)."""
-    from sim.lab.controller import DEFAULT_POLYSCOPE, GENERATIONS
+    from sim.lab.settings import DEFAULT_POLYSCOPE, GENERATIONS
 
     parser.add_argument("--host", help="address every port listens on (default 127.0.0.1; inside run's private "
                         "namespace 0.0.0.0, so that a client may use any 127.x.y.z)")
@@ -99,13 +99,9 @@ class LabStartError(Exception):
 def open_lab(args: argparse.Namespace) -> Callable[[], None]:
     """Build and start the emulated cell; return the function that stops it. The control channel opens last."""
     from sim.lab.control import ControlServer, install_controller_commands
-    from sim.lab.controller import (
-        DEFAULT_POLYSCOPE,
-        Controller,
-        ControllerSettings,
-        parse_polyscope,
-    )
+    from sim.lab.controller import Controller
     from sim.lab.dashboard import DashboardServer
+    from sim.lab.settings import DEFAULT_POLYSCOPE, ControllerSettings, parse_polyscope
 
     args.host = args.host or ("0.0.0.0" if netns.in_private_namespace() else "127.0.0.1")
     try:

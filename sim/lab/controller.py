@@ -1,5 +1,5 @@
-"""The emulated UR controller: the ArmModel protocol, the control clock, the script port (30003) and the program
-that stands in for ur_rtde's uploaded `rtde_control.script`.
+"""The emulated UR controller: the ArmModel protocol, the control clock and the program that stands in for
+ur_rtde's uploaded `rtde_control.script` (the script port and what is read of the script: sim/lab/script.py).
 
 ur_rtde drives the robot through RTDE registers read by the script it uploads: the command goes in
 `input_int_register_0`, its arguments in `input_double_register_0..13` and `input_int_register_1` (the async flag
@@ -21,23 +21,26 @@ of the tick, before the program runs, so a `set_tcp` shows in the pose one packa
 from __future__ import annotations
 
 import logging
-import socket
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
 
-from sim.lab import TcpServer
 from sim.lab.rtde import OUTPUT_TYPES, TYPE_FORMATS, RTDEServer
+from sim.lab.script import (
+    COMMAND_NAMES,
+    REALTIME_COMMANDS,
+    Program,
+    ScriptRuntimeError,
+    ScriptServer,
+)
+from sim.lab.settings import ControllerSettings
 from sim.robot import HOME_Q
 
 log = logging.getLogger(__name__)
 
-SCRIPT_PORT = 30003
 #: The twin's home joints on the wire: the RTDE base frame has the table along +x with the shoulder pan at pi.
 HOME_Q_WIRE = np.asarray(HOME_Q, dtype=np.float64) + np.array([np.pi, 0.0, 0.0, 0.0, 0.0, 0.0])
 #: Deceleration of a stop the controller makes itself (safety stop, program end), in the current motion's units
@@ -53,14 +56,6 @@ SAFETY_BITS = {"normal": 1 << 0, "protective_stop": (1 << 2) | (1 << 10),
 ROBOT_POWER_ON_BIT, ROBOT_PROGRAM_RUNNING_BIT = 1 << 0, 1 << 1
 JOINT_MODE_RUNNING = 253
 
-#: ur_rtde's command numbers (its RobotCommand::Type) that this controller answers.
-COMMAND_NAMES = {1: "movej", 2: "movej_ik", 3: "movel", 29: "set_tcp", 30: "get_inverse_kin_args",
-                 31: "protective_stop", 33: "stopl", 34: "stopj", 36: "is_pose_within_safety_limits", 37: "is_joints_within_safety_limits",
-                 40: "get_tcp_offset", 46: "get_inverse_kin_default", 47: "is_steady",
-                 60: "get_inverse_kin_has_solution_default", 61: "get_inverse_kin_has_solution_args",
-                 255: "stop_script"}
-#: Commands the script treats as real-time (processed and answered with "ready" every cycle): not emulated.
-REALTIME_COMMANDS = {6, 9, 10, 11, 24, 25, 26, 27, 38, 58}
 
 
 class ArmModel(Protocol):
@@ -83,70 +78,6 @@ class ArmModel(Protocol):
     def joints_within_limits(self, q: list[float]) -> bool: ...
     def ik_has_solution(self, pose: list[float], qnear: list[float] | None) -> bool: ...
     def inverse_kinematics(self, pose: list[float], qnear: list[float] | None) -> list[float] | None: ...
-
-
-GENERATIONS = {"cb3": 3, "e-series": 5}
-DEFAULT_POLYSCOPE = {"cb3": "3.15.7", "e-series": "5.11.1"}
-
-
-def parse_polyscope(text: str, generation: str) -> tuple[int, int, int, int]:
-    """'5.11.1' or '5.11.1.108318' -> (major, minor, bugfix, build), checked against the controller generation."""
-    parts = text.strip().split(".")
-    if not 3 <= len(parts) <= 4 or not all(p.isdigit() for p in parts):
-        raise ValueError(f"PolyScope version {text!r} is not of the form X.Y.Z (or X.Y.Z.build)")
-    version = tuple(int(p) for p in parts) + (0,) * (4 - len(parts))
-    if version[0] != GENERATIONS[generation]:
-        raise ValueError(f"PolyScope {text} does not run on a {generation} controller (it runs "
-                         f"{GENERATIONS[generation]}.x)")
-    return version  # type: ignore[return-value]
-
-
-@dataclass(frozen=True)
-class ControllerSettings:
-    """Controller generation ("cb3" 125 Hz, "e-series" 500 Hz), PolyScope version, serial number and timings."""
-
-    generation: str = "e-series"
-    polyscope: tuple[int, int, int, int] = (5, 11, 1, 0)
-    serial: str = "20235500001"
-    unlock_delay: float = 5.0  # s after a protective stop before the dashboard may unlock it (UR's rule)
-    program_start_delay: float = 0.1  # s from a complete script to its program running
-
-    @property
-    def frequency(self) -> float:
-        """The RTDE rate (Hz) of this generation."""
-        return 500.0 if self.generation == "e-series" else 125.0
-
-    @property
-    def remote_control_exists(self) -> bool:
-        """Whether this PolyScope has the local/remote control switch (ur_rtde checks it on 5.6 and later)."""
-        return self.polyscope[0] == 5 and self.polyscope[1] > 5
-
-
-class ScriptRuntimeError(Exception):
-    """A runtime error of the control script: the controller stops the program."""
-
-
-@dataclass
-class Program:
-    """The running control script: what the uploaded text contains and the state of its main loop."""
-
-    name: str
-    has_ik_check: bool  # get_inverse_kin_has_solution survived ur_rtde's version stripping
-    has_protective_stop: bool
-    has_tcp_offset: bool
-    executing: bool = False
-    write_count: int = 0
-    operation_id: int = 0
-    async_kind: str | None = None  # "move" | "stop" while an async thread runs
-    pending: str | None = None  # a synchronous motion or stop the main loop waits for
-
-    @classmethod
-    def parse(cls, text: str) -> Program:
-        """Read what the controller needs from a script `def name(): ... end`."""
-        header = text.lstrip().split("\n", 1)[0]
-        name = header.split()[1].split("(")[0] if len(header.split()) > 1 else "program"
-        return cls(name=name, has_ik_check="get_inverse_kin_has_solution(" in text,
-                   has_protective_stop="protective_stop()" in text, has_tcp_offset="get_tcp_offset()" in text)
 
 
 class Controller:
@@ -535,36 +466,3 @@ STATIC_OUTPUTS: dict[str, Any] = {name: _static_value(name, kind) for name, kind
 STATIC_OUTPUTS.update({"speed_scaling": 1.0, "target_speed_fraction": 1.0, "actual_main_voltage": 48.0,
                        "actual_robot_voltage": 48.0, "joint_mode": [JOINT_MODE_RUNNING] * 6,
                        "joint_temperatures": [30.0] * 6, "actual_joint_voltage": [47.5] * 6})
-
-
-class ScriptServer(TcpServer):
-    """The script port: collects each top-level `def name(): ... end` a client sends and hands it on."""
-
-    def __init__(self, host: str, on_program: Callable[[str], None], port: int = SCRIPT_PORT) -> None:
-        self.on_program = on_program
-        super().__init__(host, port)
-
-    def serve_client(self, sock: socket.socket) -> None:
-        pending = ""
-        while True:
-            chunk = sock.recv(65536)
-            if not chunk:
-                return
-            pending = self._take_programs(pending + chunk.decode("utf-8", "replace"))
-
-    def _take_programs(self, text: str) -> str:
-        """Hand on every complete program in `text`; return what is left (an incomplete program)."""
-        while True:
-            stripped = text.lstrip()
-            if not stripped.startswith(("def ", "sec ")):
-                line, newline, text = stripped.partition("\n")
-                if not newline:
-                    return stripped
-                log.warning("script port: ignored a line outside a program: %.60s", line)
-                continue
-            lines = stripped.split("\n")
-            ends = [i for i, line in enumerate(lines[:-1]) if i > 0 and line.rstrip() == "end"]
-            if not ends:
-                return stripped
-            self.on_program("\n".join(lines[:ends[0] + 1]) + "\n")
-            text = "\n".join(lines[ends[0] + 1:])
