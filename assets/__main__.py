@@ -49,27 +49,33 @@ def _gallery(args: argparse.Namespace) -> int:
 def precompute_decompositions(mode: str = "fast", seed: int = 0, workers: int | None = None,
                               only: list[str] | None = None, force: bool = False) -> list[str]:
     """Fill assets/decompositions/ with the decomposition sweeps of the twin's objects (the bundled warm cache);
-    one line per object. Runs already there are kept, unless `force`: then every run is recomputed (into a
-    temporary folder, so an interrupted run leaves the old entries) and replaces the object's entries for `mode` and
-    `seed`."""
-    from seggrasp.decompose import ASSET_CACHE_DIR, DecompositionConfig, decompose_sweep
+    one line per object. Each object's mesh is decomposed as the benchmark reads it (the file's faces) and, where
+    repairing it changes it (degenerate or duplicate faces), as `python -m seggrasp segment` reads it (the working
+    mesh of `seggrasp.mesh.prepare_mesh`). Runs already there are kept, unless `force`: then every run is recomputed
+    (into a temporary folder, so an interrupted run leaves the old entries) and replaces the object's entries for
+    `mode` and `seed`."""
+    from seggrasp.decompose import ASSET_CACHE_DIR, DecompositionConfig, decompose_sweep, mesh_hash
     from seggrasp.decompose.sweep import sweep_cache_keys
+    from seggrasp.mesh import prepare_mesh
 
     config = DecompositionConfig(mode=mode, seed=seed)
     done = []
     for model in load_asset_set() if not only else [load_asset(i) for i in only]:
         started = time.perf_counter()
-        if force:
-            with tempfile.TemporaryDirectory(prefix="decompose-", dir=ASSET_CACHE_DIR) as fresh:
-                partitions = decompose_sweep(model.mesh, config, cache_dir=fresh, workers=workers, bundled=False)
-                for key in sweep_cache_keys(model.mesh, config):
-                    (ASSET_CACHE_DIR / f"{key}.npz").unlink(missing_ok=True)
-                for entry in Path(fresh).glob("*.npz"):
-                    os.replace(entry, ASSET_CACHE_DIR / entry.name)
-        else:
-            partitions = decompose_sweep(model.mesh, config, cache_dir=ASSET_CACHE_DIR, workers=workers)
-        done.append(f"{model.object_id}: {len(model.mesh.faces)} faces, {len(partitions)} distinct partitions, "
-                    f"{time.perf_counter() - started:.1f} s")
+        working = prepare_mesh(model.mesh.vertices, model.mesh.faces, name=model.object_id).mesh
+        meshes = [model.mesh] + ([working] if mesh_hash(working) != mesh_hash(model.mesh) else [])
+        for mesh in meshes:
+            if force:
+                with tempfile.TemporaryDirectory(prefix="decompose-", dir=ASSET_CACHE_DIR) as fresh:
+                    partitions = decompose_sweep(mesh, config, cache_dir=fresh, workers=workers, bundled=False)
+                    for key in sweep_cache_keys(mesh, config):
+                        (ASSET_CACHE_DIR / f"{key}.npz").unlink(missing_ok=True)
+                    for entry in Path(fresh).glob("*.npz"):
+                        os.replace(entry, ASSET_CACHE_DIR / entry.name)
+            else:
+                partitions = decompose_sweep(mesh, config, cache_dir=ASSET_CACHE_DIR, workers=workers)
+            done.append(f"{model.object_id}{'' if mesh is model.mesh else ' (working mesh)'}: {len(mesh.faces)} "
+                        f"faces, {len(partitions)} distinct partitions, {time.perf_counter() - started:.1f} s")
     return done
 
 

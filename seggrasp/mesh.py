@@ -4,9 +4,11 @@ Every per-face result in SegGrasp refers to the faces of the *input file* in fil
 repaired (duplicate vertices merged, zero-area faces dropped, duplicate faces merged); `PreparedMesh` keeps the map
 between the two orders.
 
-Duplicate faces (two or more faces on the same three vertices after vertex merging, whatever their winding) are one
+Duplicate faces (two or more faces on the same three vertices in the same winding, after vertex merging) are one
 working face: a renderer's depth test shows only one of the coincident copies, so the others would collect no votes.
-Every copy takes the working face's value (`PreparedMesh.to_source`), so all copies get the same label.
+Every copy takes the working face's value (`PreparedMesh.to_source`), so all copies get the same label. A face and
+its reverse are kept apart: they are the two sides of a zero-thickness fin (scans have them), and merging them would
+open a closed surface.
 """
 
 from __future__ import annotations
@@ -228,8 +230,10 @@ def prepare_mesh(
         raise ValueError(f"{name}: all {len(faces)} faces have zero area")
     kept = np.flatnonzero(keep)
     dropped = np.flatnonzero(~keep)
-    # Faces on the same vertex set are one working face, the first copy in file order.
-    _, first, group = np.unique(np.sort(merged_faces[kept], axis=1), axis=0, return_index=True, return_inverse=True)
+    # Copies of a face (its corners in the same winding, from any corner) are one working face, the first copy in
+    # file order. A face and its reverse are two sides of a sheet (scans have such fins) and both stay.
+    _, first, group = np.unique(_from_lowest_corner(merged_faces[kept]), axis=0, return_index=True,
+                                return_inverse=True)
     rank = np.empty(len(first), dtype=np.int64)
     rank[np.argsort(first)] = np.arange(len(first))
     work_of_kept = rank[group.reshape(-1)]
@@ -249,6 +253,13 @@ def prepare_mesh(
         source_to_work[dropped] = nearest
     return PreparedMesh(mesh=mesh, source_face=unique, source_to_work=source_to_work, dropped_faces=dropped,
                         duplicate_faces=duplicates)
+
+
+def _from_lowest_corner(faces: np.ndarray) -> np.ndarray:
+    """Each face's corners rotated to start at its lowest vertex index (winding kept): equal rows are copies."""
+    start = np.argmin(faces, axis=1)
+    rows = np.arange(len(faces))[:, None]
+    return faces[rows, (start[:, None] + np.arange(3)) % 3]
 
 
 def _checked_arrays(vertices: np.ndarray, faces: np.ndarray, min_extent: float, max_extent: float,

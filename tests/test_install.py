@@ -13,7 +13,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SCRIPT = REPO / "scripts" / "system_packages.sh"
-PACKAGES = ["libosmesa6", "libusb-1.0-0"]
+PACKAGES = ["libosmesa6", "libusb-1.0-0", "iproute2", "util-linux"]
 
 FAKES = {
     # installed packages are listed in $FAKE_INSTALLED
@@ -52,7 +52,7 @@ def test_nothing_is_installed_when_the_packages_are_present(tmp_path: Path) -> N
 
 
 def test_root_installs_only_the_missing_packages_with_apt_get(tmp_path: Path) -> None:
-    result, calls = _run(tmp_path, ["libusb-1.0-0"], uid=0)
+    result, calls = _run(tmp_path, PACKAGES[1:], uid=0)
     assert result.returncode == 0, result.stderr
     assert calls[0] == "apt-get update -qq"
     assert calls[1] == "apt-get install -y -qq --no-install-recommends libosmesa6"
@@ -63,7 +63,7 @@ def test_a_user_installs_through_sudo(tmp_path: Path) -> None:
     result, calls = _run(tmp_path, [], uid=1000)
     assert result.returncode == 0, result.stderr
     assert calls == ["sudo", "apt-get update -qq", "sudo",
-                     "apt-get install -y -qq --no-install-recommends libosmesa6 libusb-1.0-0"]
+                     "apt-get install -y -qq --no-install-recommends libosmesa6 libusb-1.0-0 iproute2 util-linux"]
 
 
 @pytest.mark.parametrize(("uid", "sudo", "apt_status", "reason"),
@@ -74,8 +74,8 @@ def test_when_nothing_can_install_one_message_names_the_packages(
     result, _ = _run(tmp_path, [], uid=uid, sudo=sudo, apt_status=apt_status)
     assert result.returncode == 1
     assert result.stderr.strip().splitlines() == [
-        f"error: SegGrasp needs the system packages libosmesa6 libusb-1.0-0: {reason}; install them as root "
-        "(apt-get install libosmesa6 libusb-1.0-0) and run this script again"
+        f"error: SegGrasp needs the system packages libosmesa6 libusb-1.0-0 iproute2 util-linux: {reason}; install "
+        "them as root (apt-get install libosmesa6 libusb-1.0-0 iproute2 util-linux) and run this script again"
     ]
 
 
