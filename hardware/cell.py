@@ -21,6 +21,7 @@ import trimesh
 
 from hardware.config import CellConfig, load_config
 from hardware.errors import ConnectionLostError, HardwareError, MotionError, RobotStoppedError, SafetyError
+from hardware.kinematics import inverse_kinematics
 from hardware.realsense import RealSenseCamera
 from hardware.robotiq import RobotiqGripper
 from hardware.safety import SafetyGuard
@@ -33,6 +34,11 @@ log = logging.getLogger(__name__)
 PLACE_CLEARANCE = 0.01
 #: A reset retracts straight up first when the gripper is more than this below its home height.
 RETRACT_TOLERANCE = 0.02
+#: The retract stops short of stretching the elbow straight: every 1 cm of it keeps the elbow bent by this much
+#: (rad) on its current side. Up to a stretched elbow a moveL meets the singularity (a protective stop on the
+#: robot; on the emulated cell, before sim/lab/kinematic.py refused it, a swing round to the other branch).
+RETRACT_ELBOW_MARGIN = 0.3
+RETRACT_STEP = 0.01
 #: The perception box reaches this far below the table top, so the table plane can be measured.
 PERCEPTION_BELOW_TABLE = 0.02
 
@@ -160,8 +166,9 @@ class RealCell:
         home_height = min(float(self.arm.home_pose()[2, 3]), float(self.config.limits.workspace_max[2]))
         if current[2, 3] < home_height - RETRACT_TOLERANCE:
             retract = current.copy()
-            retract[2, 3] = home_height
-            self.arm.move_linear(retract, motion.tool_speed, motion.tool_acceleration)
+            retract[2, 3] = self._retract_height(current, home_height)
+            if retract[2, 3] > current[2, 3] + RETRACT_STEP / 2:
+                self.arm.move_linear(retract, motion.tool_speed, motion.tool_acceleration)
         self.arm.move_joints(self.config.robot.home_joints, motion.joint_speed, motion.joint_acceleration)
         what = f"object {object_id!r}" if object_id else "the object"
         prompt = (f"Place {what} on the table inside the workspace box "
@@ -169,6 +176,20 @@ class RealCell:
         log.warning(prompt)
         if self.config.interactive and sys.stdin is not None and sys.stdin.isatty():
             input(prompt + " Press Enter when done. ")
+
+    def _retract_height(self, current: np.ndarray, home_height: float) -> float:
+        """The highest z up to `home_height` a straight retract from `current` reaches with the elbow bent by
+        `RETRACT_ELBOW_MARGIN` on its present side at every step (the model's nominal kinematics)."""
+        elbow = float(self.arm.joints()[2])
+        flange_in_gripper = np.linalg.inv(self.config.robot.T_flange_gripper)
+        reached, T = float(current[2, 3]), current.copy()
+        while reached < home_height:
+            T[2, 3] = min(reached + RETRACT_STEP, home_height)
+            solutions = inverse_kinematics(self.config.robot.model, T @ flange_in_gripper)
+            if not any(q[2] * elbow > 0 and abs(q[2]) >= RETRACT_ELBOW_MARGIN for q in solutions):
+                break
+            reached = float(T[2, 3])
+        return reached
 
     def capture(self) -> list[Frame]:
         """One aligned RGB-D frame from every camera (wrist cameras placed by the gripper's current pose)."""

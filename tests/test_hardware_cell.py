@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import logging
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -137,6 +138,26 @@ def test_reset_after_a_grasp_retracts_straight_up_before_going_home(rig):
     assert [name for name, _ in rig.ur.motions[before + 2:]] == ["moveJ"]
 
 
+def test_reset_retracts_no_higher_than_the_elbow_stays_bent():
+    # issue 33, found by the evaluation command on the emulated cell: from a far, low, tilted grasp the retract
+    # straight up to the home height (0.265 m) stretched the elbow into its singularity (a protective stop)
+    from hardware.cell import RETRACT_ELBOW_MARGIN
+    from hardware.kinematics import inverse_kinematics
+
+    config = Path(__file__).resolve().parents[1] / "hardware" / "cell.emulated.yaml"
+    cell = RealCell.from_config(config, dry_run=True, with_cameras=False)
+    cell.arm.move_joints([2.764, -0.677, 0.721, -0.716, -1.352, 0.869], 1.0, 1.4)
+    low, before = cell.arm.tcp_pose(), len(cell.arm.planned_motions)
+    cell.reset()
+    (retract, home) = cell.arm.planned_motions[before:]
+    assert (retract.kind, home.kind) == ("moveL", "moveJ")
+    up = matrix_from_ur_pose(retract.target)
+    np.testing.assert_allclose(up[:2, 3], low[:2, 3], atol=1e-6)
+    assert low[2, 3] + 0.1 < up[2, 3] < cell.arm.home_pose()[2, 3] - 0.01
+    elbows = [q[2] for q in inverse_kinematics("ur5", up @ np.linalg.inv(cell.config.robot.T_flange_gripper))]
+    assert max(elbows) >= RETRACT_ELBOW_MARGIN
+
+
 def test_object_slipping_during_the_lift_is_not_lifted(rig):
     rig.cell.reset()
     rig.ur.on_motion = lambda kind, target: rig.server.slip() if target[2] > 0.2 else None
@@ -242,7 +263,7 @@ def test_close_shuts_everything_down_once(rig):
 def test_gym_env_drives_the_real_cell(tmp_path):
     import gymnasium as gym
 
-    from sim.env import register_envs
+    from sim import register_envs
 
     register_envs()
     server = FakeRobotiqServer(object_register=150, newline=True)

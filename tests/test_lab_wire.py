@@ -298,3 +298,21 @@ def test_kinematic_arm_follows_trapezoids_and_brakes_at_the_given_deceleration()
     while arm.is_moving():
         arm.step(0.002)
     assert braking_from - arm.actual_tcp_pose()[0] == pytest.approx(0.1**2 / (2 * 1.0), abs=2e-4)  # v^2 / 2a
+
+
+def test_kinematic_arm_movel_into_the_elbow_singularity_stops_instead_of_jumping_branch():
+    # found by the evaluation command on the emulated cell: RealCell.reset's retract straight up from a far, low
+    # grasp stretched the elbow; past it the nearest IK solution was the other branch (0.24 rad in one 8 ms tick),
+    # and the twin's servos swung the arm round behind the base into the table
+    from sim.lab.kinematic import KinematicArm
+
+    arm = KinematicArm(q=[2.764, -0.677, 0.721, -0.716, -1.352, 0.869])
+    arm.set_tcp([0, 0, 0.144224, 0, 0, 0])
+    start = arm.actual_tcp_pose()
+    arm.move_linear([*start[:2], 0.2648, *start[3:]], 0.1, 0.5)
+    q, largest = np.asarray(arm.actual_q()), 0.0
+    while arm.is_moving():
+        arm.step(0.008)
+        largest, q = max(largest, float(np.abs(np.asarray(arm.actual_q()) - q).max())), np.asarray(arm.actual_q())
+    assert arm.safety_status == "protective_stop" and largest < 0.05
+    assert start[2] + 0.1 < arm.actual_tcp_pose()[2] < 0.2648

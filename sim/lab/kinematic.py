@@ -6,7 +6,9 @@ configuration and inside the joint limits. moveJ follows a trapezoidal profile o
 acceleration in rad/s^2) with all joints synchronised; moveL a trapezoidal profile along the straight tool path
 (m/s, m/s^2; a pure rotation uses its angle in rad), its joints interpolated between IK waypoints computed as the
 tool reaches them. A stop decelerates along the current path at the given rate (in that motion's units). A
-waypoint without an IK solution halts the arm in a protective stop, as a real arm does at a singularity. Safety
+waypoint without an IK solution, or whose nearest solution is another branch (a joint turning more than
+`MAX_WAYPOINT_TURN` between waypoints: the path reached a singularity), halts the arm in a protective stop, as a
+real arm does at a singularity, instead of swinging it round to the other branch. Safety
 planes (`n . p >= offset` for the TCP position) and the joint limits make the controller's safety limits.
 """
 
@@ -24,6 +26,9 @@ from sim.robot import dh_forward, ur_analytic_ik
 JOINT_LIMIT = 2 * np.pi
 #: Tool path length between moveL waypoints whose joints are solved exactly (m).
 WAYPOINT_SPACING = 0.01
+#: Most a joint may turn (rad) between two moveL waypoints; more is a jump to another IK branch at a singularity
+#: (an elbow stretching straight, a wrist aligning), which a real arm cannot follow either.
+MAX_WAYPOINT_TURN = 0.5
 #: How close the analytic IK's flange pose (4x4 entries: m and rotation-matrix units) must land on the requested
 #: one to count as a solution.
 IK_TOLERANCE = 1e-6
@@ -245,7 +250,7 @@ class KinematicArm:
         while self._waypoints[-1][0] < s:
             s_next = min(length, self._waypoints[-1][0] + WAYPOINT_SPACING)
             q = self.inverse_kinematics(pose_vector(self._line_pose(s_next)), self._waypoints[-1][1].tolist())
-            if q is None:
+            if q is None or np.abs(np.asarray(q) - self._waypoints[-1][1]).max() > MAX_WAYPOINT_TURN:
                 return False
             self._waypoints.append((s_next, np.asarray(q)))
         for (s0, q0), (s1, q1) in zip(self._waypoints[:-1], self._waypoints[1:]):
