@@ -1,16 +1,10 @@
-"""The Robotiq 2F-85 as simulated: the linkage's parallel pads on force-limited slides, and a floating gripper.
+"""The Robotiq 2F-85 as simulated: the datasheet's numbers, its actuation settings and `Robotiq2F85`, which drives
+the pads of the simulated description (`sim.gripper_urdf`: each inner finger on a closing slide and a lift).
 
-The 2F-85 is a parallel-pad gripper: its six-bar linkage moves each inner finger (with its pad) along an arc of
-the outer knuckle's pivot without turning it. The description (assets/robots/) has that linkage opened into a tree
-of revolute joints, which PyBullet's iterative solver does not converge under a squeeze: at 100 iterations the
-pads splayed 3.5-5 deg apart, a thin shaft rolled between them and the grip force never exceeded ~100 N
-(docs/results/archive/twin-physics-round4-roll.md). `simulated_urdf` therefore re-hangs each inner finger from the gripper
-body on two prismatic joints traced from the linkage's own kinematics: a closing slide (actuated: velocity control
-at the closing speed with the grip force as its limit until the fingers stall, then pushed with the grip force
-itself, as the 2F-85's motor squeezes; `Robotiq2F85.squeeze`) and a lift (servoed to the arc's height for
-the slide's travel). The pads keep the 2F-85's geometry and arc, stay parallel by construction, and the squeeze
-passes one joint to the gripper body. The knuckles and outer fingers stay as servoed followers of the arc's angle:
-they are seen by the cameras and collide, but carry no squeeze.
+The closing slides are actuated (velocity control at the closing speed with the grip force as its limit until the
+fingers stall, then pushed with the grip force itself, as the 2F-85's motor squeezes; `Robotiq2F85.squeeze`), the
+lifts servoed to the arc's height for the slide's travel. The knuckles and outer fingers stay as servoed followers
+of the arc's angle: they are seen by the cameras and collide, but carry no squeeze.
 
 Gripper frame (docs/design.md section 3): z = approach, x = closing direction, origin between the pad centres. The pad centres'
 height above the gripper base depends on the opening (the arc), so `T_base_tcp(width)` gives the frame for the
@@ -19,47 +13,18 @@ width at which the pads will meet the object.
 
 from __future__ import annotations
 
-import atexit
-import shutil
-import tempfile
-import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from functools import lru_cache
-from pathlib import Path
 
 import numpy as np
 import pybullet
-from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
-from sim.world import PATH_RESOLUTION, ROBOT_ASSETS, World, linear_poses, pose_to_pb
+from sim.gripper_urdf import ARC_ANGLES, CARRIAGE_MASS, FINGERTIP_LINKS, PAD_LINKS, SIDES, description_arcs
+from sim.world import World
 
-#: The body the fingers hang from, and each side's linkage: (outer knuckle joint, inner knuckle joint, inner
-#: finger joint of the description; the simulated closing slide and lift that replace the inner finger joint).
-GRIPPER_BODY_LINK = "robotiq_body"
-SIDES = (
-    ("finger_joint", "left_inner_knuckle_joint", "left_inner_finger_joint", "left_finger_slide", "left_finger_lift"),
-    ("right_outer_knuckle_joint", "right_inner_knuckle_joint", "right_inner_finger_joint", "right_finger_slide",
-     "right_finger_lift"),
-)
-#: The gripper alone (the floating gripper's description); the arm's carries the same gripper.
-GRIPPER_DESCRIPTION = "robotiq_2f85.urdf"
-#: The gripper description's root link (the floating gripper's gantry carries it).
-GANTRY_TOOL_LINK = "robotiq_base_link"
-PAD_LINKS = ("left_inner_finger_pad", "right_inner_finger_pad")
-#: The rigid fingertip of each side: the inner finger and the pad mounted on it (both touch what is grasped).
-FINGERTIP_LINKS = (("left_inner_finger", "left_inner_finger_pad"), ("right_inner_finger", "right_inner_finger_pad"))
 PAD_THICKNESS = 0.00635
-#: The outer knuckle's travel (rad) from open to shut.
-KNUCKLE_MAX = 0.8
 #: Datasheet: 85 mm stroke.
 MAX_WIDTH = 0.085
-#: Mass (kg) of each slide's carriage: the finger drive's effective mass. The 2F-85's motor drives the fingers
-#: through a self-locking gear, so a contact impulse meets the rotor's inertia times the squared gear ratio, not a
-#: 15 g fingertip; with only the linkage's 58 g on the slide the closing velocity motor (100 iterations) pressed a
-#: box resting on the table with about 130 N of a 235 N setting, with 0.5 kg all of it (the squeeze that holds a
-#: lifted object is `Robotiq2F85.squeeze`). Its weight is cancelled every step (`Robotiq2F85._drive_fingers`).
-CARRIAGE_MASS = 0.5
 #: Force limit (N) and error reduction of the constraint that makes both slides travel together.
 COUPLING_FORCE = 10000.0
 COUPLING_ERP = 0.5
@@ -95,130 +60,6 @@ class GripperSettings:
         low, high = GRIP_FORCE_RANGE
         if not low <= self.grip_force <= high:
             raise ValueError(f"grip_force must be within the 2F-85's {low:g}-{high:g} N, got {self.grip_force}")
-
-
-# --- the simulated description ------------------------------------------------------------------------------------
-
-def _origin(joint: ET.Element) -> np.ndarray:
-    """A URDF joint's origin as a 4x4 pose (rpy: fixed-axis roll, pitch, yaw)."""
-    element = joint.find("origin")
-    xyz = [float(v) for v in element.get("xyz", "0 0 0").split()] if element is not None else [0.0] * 3
-    rpy = [float(v) for v in element.get("rpy", "0 0 0").split()] if element is not None else [0.0] * 3
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
-    T[:3, 3] = xyz
-    return T
-
-
-def _rotation_about(joint: ET.Element, angle: float) -> np.ndarray:
-    T = np.eye(4)
-    axis = np.array([float(v) for v in joint.find("axis").get("xyz").split()])
-    T[:3, :3] = Rotation.from_rotvec(angle * axis / np.linalg.norm(axis)).as_matrix()
-    return T
-
-
-def finger_arc(robot: ET.Element, side: tuple[str, ...], angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The linkage's kinematics of one side: the inner finger's frame at knuckle angle 0 in the gripper body frame,
-    and its displacement (n x 3, that frame's axes) at each knuckle angle, the inner finger counter-rotating."""
-    joints = {j.get("name"): j for j in robot.iter("joint")}
-    by_child = {j.find("child").get("link"): j for j in robot.iter("joint")}
-    knuckle, inner_finger = joints[side[0]], joints[side[2]]
-    between = np.eye(4)  # outer knuckle -> inner finger joint's parent, through fixed joints
-    link = inner_finger.find("parent").get("link")
-    while link != knuckle.find("child").get("link"):
-        joint = by_child[link]
-        if joint.get("type") != "fixed":
-            raise ValueError(f"unexpected {joint.get('type')} joint {joint.get('name')!r} in the 2F-85 finger")
-        between = _origin(joint) @ between
-        link = joint.find("parent").get("link")
-    if knuckle.find("parent").get("link") != GRIPPER_BODY_LINK:
-        raise ValueError(f"{side[0]!r} does not hang from {GRIPPER_BODY_LINK!r}")
-
-    def pose(angle: float) -> np.ndarray:
-        return (_origin(knuckle) @ _rotation_about(knuckle, angle) @ between @ _origin(inner_finger)
-                @ _rotation_about(inner_finger, -angle))
-
-    T_body_finger0 = pose(0.0)
-    displacement = np.array([(np.linalg.inv(T_body_finger0) @ pose(a))[:3, 3] for a in angles])
-    return T_body_finger0, displacement
-
-
-def _inertial(mass: float, inertia: float = 1e-6) -> ET.Element:
-    """An <inertial> element: `mass` (kg) at the link frame with a diagonal `inertia` (kg m^2)."""
-    inertial = ET.Element("inertial")
-    ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
-    ET.SubElement(inertial, "mass", value=f"{mass:g}")
-    ET.SubElement(inertial, "inertia", ixx=f"{inertia:g}", ixy="0", ixz="0", iyy=f"{inertia:g}", iyz="0", izz=f"{inertia:g}")
-    return inertial
-
-
-ARC_ANGLES = np.linspace(0.0, KNUCKLE_MAX, 33)
-
-
-def slide_arc(robot: ET.Element, side: tuple[str, ...]) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
-    """One side's arc as the slides trace it: (inner finger frame at knuckle angle 0 in the body frame, the closing
-    direction along that frame's y (+1/-1), slide travel and lift at each of `ARC_ANGLES`)."""
-    T_body_finger0, displacement = finger_arc(robot, side, ARC_ANGLES)
-    if np.abs(displacement[:, 0]).max() > 1e-6:
-        raise ValueError(f"the 2F-85 finger of {side[0]!r} does not move in its y-z plane")
-    return T_body_finger0, float(np.sign(displacement[-1, 1])), np.abs(displacement[:, 1]), displacement[:, 2]
-
-
-@lru_cache(maxsize=None)
-def description_arcs(urdf_name: str) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
-    """(slide travel, lift) over `ARC_ANGLES` of each side of the 2F-85 in a description of assets/robots/."""
-    robot = ET.parse(ROBOT_ASSETS / urdf_name).getroot()
-    return tuple(slide_arc(robot, side)[2:] for side in SIDES)
-
-
-def slide_fingertips(robot: ET.Element) -> None:
-    """Re-hang each inner finger of a 2F-85 description (in place) from the gripper body on a closing slide and a
-    lift, both traced from `finger_arc`: slide travel = the arc's closing component, lift = its approach component."""
-    for side in SIDES:
-        joint = next(j for j in robot.iter("joint") if j.get("name") == side[2])
-        T_body_finger0, closing, travel, lift = slide_arc(robot, side)
-        carriage = side[3].replace("slide", "carriage")
-        robot.remove(joint)
-        link = ET.SubElement(robot, "link", name=carriage)
-        link.append(_inertial(CARRIAGE_MASS))
-        xyz = " ".join(f"{v:.9g}" for v in T_body_finger0[:3, 3])
-        rpy = " ".join(f"{v:.12g}" for v in Rotation.from_matrix(T_body_finger0[:3, :3]).as_euler("xyz"))
-        for name, parent, child, axis, origin, (low, high) in (
-            (side[3], GRIPPER_BODY_LINK, carriage, f"0 {closing:g} 0", (xyz, rpy), (0.0, travel.max())),
-            (side[4], carriage, joint.find("child").get("link"), "0 0 1", ("0 0 0", "0 0 0"),
-             (min(lift.min(), 0.0), lift.max())),
-        ):
-            slide = ET.SubElement(robot, "joint", name=name, type="prismatic")
-            ET.SubElement(slide, "parent", link=parent)
-            ET.SubElement(slide, "child", link=child)
-            ET.SubElement(slide, "origin", xyz=origin[0], rpy=origin[1])
-            ET.SubElement(slide, "axis", xyz=axis)
-            ET.SubElement(slide, "limit", lower=f"{low:.9g}", upper=f"{high:.9g}", effort="1000", velocity="1")
-
-
-def simulated_robot(urdf_name: str) -> ET.Element:
-    """A description from assets/robots/ as the twin simulates it: absolute mesh paths, the 2F-85's fingertips on
-    slides (`slide_fingertips`)."""
-    robot = ET.parse(ROBOT_ASSETS / urdf_name).getroot()
-    for mesh in robot.iter("mesh"):
-        mesh.set("filename", str(ROBOT_ASSETS / mesh.get("filename")))
-    slide_fingertips(robot)
-    return robot
-
-
-def write_urdf(robot: ET.Element, name: str) -> Path:
-    """Write a description to a temporary file removed when the process exits."""
-    directory = tempfile.mkdtemp(prefix="seggrasp-robot-")
-    atexit.register(shutil.rmtree, directory, ignore_errors=True)
-    path = Path(directory) / name
-    ET.ElementTree(robot).write(path, encoding="unicode", xml_declaration=True)
-    return path
-
-
-@lru_cache(maxsize=None)
-def simulated_urdf(urdf_name: str) -> Path:
-    """`simulated_robot` written once per process."""
-    return write_urdf(simulated_robot(urdf_name), urdf_name)
 
 
 class Robotiq2F85:
@@ -418,144 +259,3 @@ class Robotiq2F85:
                 self.squeeze()
                 return step
         return max_steps
-
-
-#: The floating gripper's slides: force limit (N) and the mass (kg) of each carriage.
-SLIDE_FORCE = 1000.0
-SLIDE_MASS = 1.0
-#: Position and velocity gains of the slides' servo while following a path.
-SLIDE_GAINS = (0.05, 1.0)
-
-
-@lru_cache(maxsize=1)
-def gantry_urdf() -> Path:
-    """The simulated 2F-85 (`simulated_robot` of assets/robots/robotiq_2f85.urdf) mounted on three prismatic slides
-    (x, y, z of a fixed anchor), written once per process."""
-    robot = simulated_robot(GRIPPER_DESCRIPTION)
-    if not any(link.get("name") == GANTRY_TOOL_LINK for link in robot.iter("link")):
-        raise ValueError(f"{ROBOT_ASSETS / GRIPPER_DESCRIPTION} has no link {GANTRY_TOOL_LINK!r}")
-    parent = "gantry_anchor"
-    ET.SubElement(robot, "link", name=parent).append(_inertial(0.0))
-    for name, axis, child in (("x", "1 0 0", "gantry_x_carriage"), ("y", "0 1 0", "gantry_y_carriage"), ("z", "0 0 1", GANTRY_TOOL_LINK)):
-        if child != GANTRY_TOOL_LINK:
-            ET.SubElement(robot, "link", name=child).append(_inertial(SLIDE_MASS, 1e-3))
-        joint = ET.SubElement(robot, "joint", name=f"gantry_{name}", type="prismatic")
-        ET.SubElement(joint, "parent", link=parent)
-        ET.SubElement(joint, "child", link=child)
-        ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
-        ET.SubElement(joint, "axis", xyz=axis)
-        ET.SubElement(joint, "limit", lower="-2", upper="2", effort=f"{SLIDE_FORCE:g}", velocity="1")
-        parent = child
-    return write_urdf(robot, "robotiq_2f85_gantry.urdf")
-
-
-class FloatingGripper:
-    """A 2F-85 with no arm, for fast sweeps: placed directly at free-space targets (as in VGN), then moved along
-    straight lines by three stiff prismatic slides under a fixed anchor (a Cartesian gantry, `gantry_urdf`).
-
-    The slides make the gripper part of a fixed-base chain, as on the arm, so the solver anchors the squeezing
-    linkage as firmly. A free base dragged by a fixed constraint (the model before) let the pads' grip fade during
-    the lift: a claw hammer held at 100 N fell from every top-3 oracle grasp at 100 solver iterations and needed 300
-    (`tests/test_sim_gripper.py` lifts it). `place` re-anchors the gantry at the pose with the slides at zero;
-    `follow` servos the slides along the path in the anchor's frame (orientation fixed, as every straight line of
-    the grasp primitive keeps it).
-
-    Exposes the same motion interface as the arm (`reset_home`, `configuration`, `plan`,
-    `free_space_paths`, `move_free`, `place`, `follow`, `hold`, `table_check_links`, `gripper`).
-    """
-
-    name = "floating"
-
-    def __init__(self, world: World, T_world_home: np.ndarray, settings: GripperSettings | None = None) -> None:
-        self.world = world
-        self.T_world_home = np.asarray(T_world_home, dtype=float)
-        position, orientation = pose_to_pb(self.T_world_home)
-        self.body = world.client.loadURDF(
-            str(gantry_urdf()), position, orientation, useFixedBase=True, flags=pybullet.URDF_USE_INERTIA_FROM_FILE,
-        )
-        c = world.client
-        joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
-        self.slides = [joints[f"gantry_{axis}"] for axis in "xyz"]
-        self.gripper = Robotiq2F85(world, self.body, joints["gantry_z"], GRIPPER_DESCRIPTION, settings)  # the slide z carries the gripper
-        self._anchor = self.T_world_home.copy()
-        self._commanded = self.T_world_home.copy()
-        self.max_speed = 0.5  # m/s along straight lines
-
-    def _servo(self, T_world_base: np.ndarray, velocity: np.ndarray | None = None) -> None:
-        """Drive the slides towards the base pose `T_world_base` (its position in the anchor frame)."""
-        R, origin = self._anchor[:3, :3], self._anchor[:3, 3]
-        target = R.T @ (np.asarray(T_world_base)[:3, 3] - origin)
-        velocity = np.zeros(3) if velocity is None else R.T @ velocity
-        kp, kd = SLIDE_GAINS
-        self.world.client.setJointMotorControlArray(
-            self.body, self.slides, pybullet.POSITION_CONTROL, targetPositions=target.tolist(),
-            targetVelocities=velocity.tolist(), forces=[SLIDE_FORCE] * 3, positionGains=[kp] * 3,
-            velocityGains=[kd] * 3,
-        )
-
-    def _teleport(self, T_world_base: np.ndarray) -> None:
-        """Re-anchor the gantry at `T_world_base` with the slides at zero and at rest."""
-        c = self.world.client
-        self._anchor = np.asarray(T_world_base, dtype=float).copy()
-        self._commanded = self._anchor.copy()
-        position, orientation = pose_to_pb(self._anchor)
-        c.resetBasePositionAndOrientation(self.body, position, orientation)
-        for joint in self.slides:
-            c.resetJointState(self.body, joint, 0.0, 0.0)
-        self._servo(self._anchor)
-
-    def reset_home(self, width: float = MAX_WIDTH) -> None:
-        self._teleport(self.T_world_home)
-        self.gripper.set_width(width)
-
-    def plan(self, poses: list[np.ndarray]) -> tuple[list[list[list[np.ndarray]]], str]:
-        """One candidate (a floating gripper reaches every pose): the first pose alone, then straight lines with
-        waypoints every `PATH_RESOLUTION` m."""
-        paths = [[np.asarray(poses[0], dtype=float)]]
-        for index in range(1, len(poses)):
-            paths.append(linear_poses(poses[index - 1], poses[index], PATH_RESOLUTION)[1:])
-        return [paths], ""
-
-    def configuration(self) -> np.ndarray:
-        """The commanded base pose."""
-        return self._commanded.copy()
-
-    def free_space_paths(self, T_world_start: np.ndarray, T_world_target: np.ndarray) -> list[list[np.ndarray]]:
-        """Poses to check on the way to a free-space target: the floating gripper is placed there directly."""
-        return [[T_world_target]]
-
-    def move_free(self, path: list[np.ndarray], on_step=None) -> None:
-        """Free-space move of a floating gripper: placed at the end of the (checked) path, as in VGN."""
-        self._teleport(path[-1])
-
-    def place(self, T_world_base: np.ndarray) -> None:
-        """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""
-        self._teleport(T_world_base)
-
-    def follow(self, path: list[np.ndarray], speed: float, on_step=None) -> None:
-        """Move the base through waypoints at `speed` (m/s), one slide target per physics step; ends at rest on
-        the last waypoint."""
-        dt = self.world.physics.time_step
-        for T_next in path:
-            start = self._commanded[:3, 3]
-            delta = np.asarray(T_next)[:3, 3] - start
-            steps = max(1, int(round(float(np.linalg.norm(delta)) / (min(speed, self.max_speed) * dt))))
-            for k in range(1, steps + 1):
-                T = self._commanded.copy()
-                T[:3, 3] = start + delta * k / steps
-                self._servo(T, delta / (steps * dt))
-                if on_step is not None:
-                    on_step()
-                self.world.step()
-            self._commanded[:3, 3] = start + delta
-        self._servo(self._commanded)
-
-    def hold(self, steps: int, on_step=None) -> None:
-        for _ in range(steps):
-            if on_step is not None:
-                on_step()
-            self.world.step()
-
-    def table_check_links(self) -> tuple[int, list[int]]:
-        """(body, links) whose geometry must stay clear of the table (the slides have none)."""
-        return self.body, list(range(self.gripper.base_link, self.world.client.getNumJoints(self.body)))

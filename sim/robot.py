@@ -19,13 +19,13 @@ import numpy as np
 import pybullet
 from scipy.spatial.transform import Rotation
 
-from sim.gripper import GripperSettings, Robotiq2F85, simulated_urdf
+from sim.gripper import GripperSettings, Robotiq2F85
+from sim.gripper_urdf import GRIPPER_BASE_LINK, simulated_urdf
 from sim.world import PATH_RESOLUTION, World, linear_poses
 
 ARM_JOINTS = (
     "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint", "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
 )
-GRIPPER_BASE_LINK = "robotiq_base_link"
 #: UR5 DH parameters (Universal Robots' published values).
 DH_D = np.array([0.089159, 0.0, 0.0, 0.10915, 0.09465, 0.0823])
 DH_A = np.array([0.0, -0.425, -0.39225, 0.0, 0.0, 0.0])

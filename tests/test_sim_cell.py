@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from seggrasp.cell import Cell
-from sim.cell import GraspPrimitive, SimCell
+from sim.cell import SimCell
+from sim.grasp_primitive import GraspPrimitive
 from sim.gripper import GripperSettings
 from sim.robot import HOME_Q
 from sim.primitives import primitive_object, top_down_grasp

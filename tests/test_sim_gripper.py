@@ -124,11 +124,10 @@ def test_the_floating_gripper_lifts_a_claw_hammer_by_its_handle():
 
 
 def test_the_pads_on_slides_trace_the_linkage_of_the_description():
-    """The simulated fingertips hang on slides (`sim.gripper.slide_fingertips`); at every opening their pads sit
+    """The simulated fingertips hang on slides (`sim.gripper_urdf.slide_fingertips`); at every opening their pads sit
     where the description's six-bar linkage puts them, parallel, as on the real 2F-85."""
-    import pybullet
-
-    from sim.gripper import ARC_ANGLES, GRIPPER_DESCRIPTION, PAD_LINKS, SIDES, Robotiq2F85, simulated_urdf
+    from sim.gripper import Robotiq2F85
+    from sim.gripper_urdf import ARC_ANGLES, GRIPPER_DESCRIPTION, PAD_LINKS, SIDES, simulated_urdf
     from sim.world import ROBOT_ASSETS, World
 
     world = World()

@@ -1,5 +1,5 @@
 """The twin's 2F-85 keeps its pads parallel while it squeezes and lifts, as the real one does: its fingertips hang on
-slides traced from the linkage (`sim.gripper`); the linkage's revolute joints splayed them 3.5-5 deg apart at 100
+slides traced from the linkage (`sim.gripper_urdf`); the linkage's revolute joints splayed them 3.5-5 deg apart at 100
 solver iterations."""
 
 import numpy as np
@@ -8,7 +8,8 @@ import pytest
 from seggrasp.episode import table_plane_in_object_frame
 from seggrasp.grasp import AntipodalSampler
 from seggrasp.objects import load_asset_set
-from sim.cell import GraspSettings, SimCell
+from sim.cell import SimCell
+from sim.grasp_primitive import GraspSettings
 from sim.primitives import primitive_object, top_down_grasp
 
 IMAGE = (160, 120)
