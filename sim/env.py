@@ -42,7 +42,6 @@ from seggrasp.labels import find_prompt
 from seggrasp.objects import ObjectModel
 from seggrasp.truth import GroundTruth
 
-ENV_ID = "SegGrasp-v0"
 PROMPT_CHARSET = string.ascii_letters + string.digits + " _-'"
 PROMPT_MAX_LENGTH = 64
 #: Observation bounds: depth range of a D435 (m), intrinsics entries (px), coordinates in the cell (m).
@@ -54,13 +53,6 @@ ACTION_LOW = np.array([0.0, -0.7, -0.05, -np.pi, -np.pi, -np.pi, 0.0], dtype=np.
 ACTION_HIGH = np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, 0.085], dtype=np.float32)
 #: Camera image widths (pixels; the height is 3/4 of it): up to the D435 colour stream's widest mode.
 IMAGE_WIDTH_RANGE = (16, 1920)
-
-
-def register_envs() -> None:
-    """Register `SegGrasp-v0` with Gymnasium (idempotent; also the `gymnasium.envs` entry point)."""
-    if ENV_ID not in gym.registry:
-        # no max_episode_steps: its TimeLimit wrapper would mark the one step `truncated` as well as `terminated`
-        gym.register(id=ENV_ID, entry_point="sim.env:SegGraspEnv")
 
 
 def action_to_grasp(action: np.ndarray) -> tuple[np.ndarray, float]:

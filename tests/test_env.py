@@ -1,5 +1,8 @@
 """SegGrasp-v0: registration, Gymnasium's env checker, determinism, reward on the prompted part."""
 
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -19,6 +22,15 @@ def objects(tmp_path_factory):
         primitive_object("box", (0.05, 0.05, 0.08), directory, object_id="box"),
         primitive_object("cylinder", (0.025, 0.09), directory, object_id="cylinder"),
     ]
+
+
+def test_import_sim_registers_the_env_without_importing_it():
+    """`python -m sim.evaluate` and `python -m sim.lab` import `sim`: its registration must not load the env."""
+    probe = ("import sys, gymnasium, sim; assert gymnasium.spec('SegGrasp-v0').entry_point == 'sim.env:SegGraspEnv'; "
+             "print(sorted(m for m in ('sim.env', 'sim.cell', 'pybullet', 'trimesh') if m in sys.modules))")
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "[]"
 
 
 def side_grasp_action(obs) -> np.ndarray:
