@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 import yaml
 
+from hardware.config import load_config
 from hardware.ur import forward_kinematics, matrix_from_ur_pose, ur_pose_from_matrix
 from seggrasp.cell import Frame
 
@@ -559,6 +560,24 @@ EXAMPLE_CONFIG = Path(__file__).resolve().parents[1] / "hardware" / "cell.exampl
 def example_config() -> dict:
     """The shipped example configuration as a dict (tests modify it and write it with `write_config`)."""
     return yaml.safe_load(EXAMPLE_CONFIG.read_text())
+
+
+def recorded_cameras_config(folder: Path) -> tuple[dict, dict[str, Path]]:
+    """The example config with both cameras played from .db3 recordings (in `folder`) of a box on the table, at
+    160x120; returns the config's data and each serial's recording."""
+    from sim.lab.cameras import write_recordings
+
+    config = load_config(EXAMPLE_CONFIG)
+    K = np.array([[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]])
+    box = trimesh.creation.box([0.06, 0.06, 0.1])
+    box.apply_translation([0.5, 0.0, 0.05])
+    frames = synthetic_frames(box, [c.T_world_cam() for c in config.cameras], K, (120, 160))
+    paths = write_recordings({c.serial: frame for c, frame in zip(config.cameras, frames)}, folder,
+                             n_frames=60)  # spares: playback drops frame sets on a loaded machine
+    data = example_config()
+    for camera in data["cameras"]:
+        camera.update(width=160, height=120, recording=str(paths[camera["serial"]]))
+    return data, paths
 
 
 def write_config(path: Path, data: dict) -> Path:

@@ -5,13 +5,10 @@ from __future__ import annotations
 import json
 import shutil
 
-import numpy as np
 import pytest
-import trimesh
 
-from fakes_hardware import EXAMPLE_CONFIG, example_config, synthetic_frames, write_config
+from fakes_hardware import EXAMPLE_CONFIG, example_config, recorded_cameras_config, write_config
 from hardware.__main__ import main
-from hardware.config import load_config
 
 
 def test_check_prints_a_summary(capsys):
@@ -186,18 +183,7 @@ def test_a_dry_run_check_without_cameras_names_them_in_one_sentence(capsys):
 
 
 def test_a_dry_run_check_plays_recorded_cameras(tmp_path, capsys):
-    from sim.lab.cameras import write_recordings
-
-    config = load_config(EXAMPLE_CONFIG)
-    K = np.array([[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]])
-    box = trimesh.creation.box([0.06, 0.06, 0.1])
-    box.apply_translation([0.5, 0.0, 0.05])
-    frames = synthetic_frames(box, [c.T_world_cam() for c in config.cameras], K, (120, 160))
-    paths = write_recordings({c.serial: frame for c, frame in zip(config.cameras, frames)}, tmp_path / "rec",
-                             n_frames=60)  # spares: playback drops frame sets on a loaded machine
-    data = example_config()
-    for camera in data["cameras"]:
-        camera.update(width=160, height=120, recording=str(paths[camera["serial"]]))
+    data, paths = recorded_cameras_config(tmp_path / "rec")
     path = write_config(tmp_path / "cell.yaml", data)
     assert main(["check", str(path), "--connect", "--dry-run"]) == 0
     out = capsys.readouterr().out

@@ -10,20 +10,16 @@ either its URCap socket (fault 13 injected on the control channel) or a stand-in
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import subprocess
 import sys
 import textwrap
 
-import numpy as np
 import pytest
-import trimesh
 
 import hardware.ur
-from fakes_hardware import EXAMPLE_CONFIG, example_config, synthetic_frames, write_config
-from hardware.config import load_config
+from fakes_hardware import EXAMPLE_CONFIG, example_config, recorded_cameras_config, write_config
 from lab_harness import run_command, run_in_lab
 
 #: Every hostile run must end within this (issue 34: "every command ends within 60 s with a clear message").
@@ -155,19 +151,8 @@ def test_ctrl_c_while_connecting_ends_with_one_line(tmp_path):
 
 def _recorded_cameras(tmp_path) -> dict:
     """The example config on 127.0.0.1 with both cameras played from recordings of a box on the table."""
-    from sim.lab.cameras import write_recordings
-
-    config = load_config(EXAMPLE_CONFIG)
-    K = np.array([[300.0, 0.0, 79.5], [0.0, 300.0, 59.5], [0.0, 0.0, 1.0]])
-    box = trimesh.creation.box([0.06, 0.06, 0.1])
-    box.apply_translation([0.5, 0.0, 0.05])
-    frames = synthetic_frames(box, [c.T_world_cam() for c in config.cameras], K, (120, 160))
-    paths = write_recordings({c.serial: frame for c, frame in zip(config.cameras, frames)}, tmp_path / "rec",
-                             n_frames=60)  # spares: playback drops frame sets on a loaded machine
-    data = example_config()
+    data, _ = recorded_cameras_config(tmp_path / "rec")
     data["robot"]["ip"] = "127.0.0.1"
-    for camera in data["cameras"]:
-        camera.update(width=160, height=120, recording=str(paths[camera["serial"]]))
     return data
 
 
