@@ -18,7 +18,6 @@ import textwrap
 
 import pytest
 
-import hardware.ur
 from fakes_hardware import EXAMPLE_CONFIG, example_config, recorded_cameras_config, write_config
 from lab_harness import run_command, run_in_lab
 
@@ -33,10 +32,6 @@ def _can_unshare() -> bool:
 
 
 needs_netns = pytest.mark.skipif(not _can_unshare(), reason="needs `unshare -n` (root or user namespaces)")
-#: The CLI's bound comes from the arm's connect deadline (hardware/ur.py CONNECT_TIMEOUT, issue 33 F3, lab-arm's);
-#: until it has landed these tests are expected to fail (the connect hangs).
-needs_connect_deadline = pytest.mark.xfail(not hasattr(hardware.ur, "CONNECT_TIMEOUT"), strict=True,
-                                           reason="hardware/ur.py has no connect deadline yet (issue 33 F3)")
 
 # Runs in a fresh network namespace: loopback up, the stand-in on every UR port, then the CLI in a subprocess with a
 # hard timeout beyond BOUND (so a hang is measured, not waited for); with `interrupt`, SIGINT reaches the CLI half a
@@ -121,7 +116,6 @@ def _one_line_error(stderr: str) -> str:
 
 
 @needs_netns
-@needs_connect_deadline
 @pytest.mark.parametrize("mode", ["silent", "garbage", "trickle"])
 def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_path, mode):
     # on 5cb5eaf all three were still running at 120 s: URArm.connect had no deadline (F3)
@@ -138,7 +132,6 @@ def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_pat
 
 
 @needs_netns
-@needs_connect_deadline
 def test_ctrl_c_while_connecting_ends_with_one_line(tmp_path):
     # seconds counted from the SIGINT
     run = run_command(["unshare", "-n", sys.executable, "-c", _CONTROLLER, "silent", _local_config(tmp_path),
