@@ -37,6 +37,7 @@ from seggrasp.fusion import refine_labels, refine_scores  # noqa: E402
 from seggrasp.io import atomic_write_text  # noqa: E402
 from seggrasp.metrics import shape_miou  # noqa: E402
 from seggrasp.render import camera_rig, render_views  # noqa: E402
+from seggrasp.truth import SIMULATED_PRESETS  # noqa: E402
 from seggrasp.views import View  # noqa: E402
 from seggrasp.vote import labels_from_scores, pixels_in_boxes, vote  # noqa: E402
 
@@ -103,7 +104,7 @@ def variant_table(records: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--meshes", choices=["twin", "ycb"], default="twin")
-    parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
+    parser.add_argument("--preset", default="typical", choices=SIMULATED_PRESETS)
     parser.add_argument("--seeds", type=int, default=5, help="detector/camera seeds --first-seed.. (default 5)")
     parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--only", help="comma list of mesh names (default: all of --meshes)")

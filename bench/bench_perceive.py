@@ -31,6 +31,8 @@ from seggrasp.mesh import prepare_mesh  # noqa: E402
 from seggrasp.metrics import shape_miou, surface_distances  # noqa: E402
 from seggrasp.perception import PerceptionConfig, Workspace, perceive_object  # noqa: E402
 from seggrasp.segment import SegmentationConfig, segment  # noqa: E402
+from seggrasp.truth import SIMULATED_PRESETS, parse_detector  # noqa: E402
+from sim.cell import EMBODIMENTS  # noqa: E402
 
 TARGET_RATIO = 0.9
 
@@ -65,11 +67,12 @@ def segmentation_miou(
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objects", nargs="*", help="twin object ids (default: all)")
-    parser.add_argument("--preset", default="typical", help="simulated-detector preset (default: typical)")
+    parser.add_argument("--preset", default="typical", choices=SIMULATED_PRESETS,
+                        help="simulated-detector preset (default: typical)")
     parser.add_argument("--refine", default="none", help="segmentation refinement mode (default: none = coarse)")
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--cameras", type=int, default=2, help="virtual D435s in the cell (default: the cell's 2)")
-    parser.add_argument("--embodiment", default="arm", choices=["arm", "floating"])
+    parser.add_argument("--embodiment", default="arm", choices=EMBODIMENTS)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, help="write the records as JSON here")
     args = parser.parse_args(argv)
@@ -110,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
                 "ratio": miou_perceived / miou_true if miou_true > 0 else float("nan"),
             })
 
-    detector = f"simulated-{args.preset}"
+    detector = parse_detector(args.preset).label
     print(f"--perceive: {len(records)} twin objects, detector {detector}, refine={args.refine}, "
           f"{args.cameras} cameras, {args.views} views, seed {args.seed}")
     print(f"{'object':24s} {'faces':>7s} {'chamfer':>8s} {'p95':>7s} {'mIoU true':>9s} {'mIoU perc':>9s} {'ratio':>6s}")

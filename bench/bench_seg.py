@@ -46,6 +46,7 @@ from seggrasp.labels import PartLabels, read_labels  # noqa: E402
 from seggrasp.mesh import mesh_hash  # noqa: E402
 from seggrasp.metrics import mean_over_categories, shape_miou  # noqa: E402
 from seggrasp.render import camera_rig, render_views  # noqa: E402
+from seggrasp.truth import SIMULATED_PRESETS  # noqa: E402
 from seggrasp.vote import labels_from_scores, vote  # noqa: E402
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"
@@ -563,7 +564,7 @@ def main(argv: list[str] | None = None) -> int:
                              "perceived (--perceived-from with 1 mm noise, reconstructed by seggrasp.perception), "
                              "or "
                              "mesh names")
-    parser.add_argument("--preset", default="typical", choices=["perfect", "typical", "hard"])
+    parser.add_argument("--preset", default="typical", choices=SIMULATED_PRESETS)
     parser.add_argument("--seed", type=int, default=0, help="CoACD seed (and the detector seed of --normalisations)")
     parser.add_argument("--views", type=int, default=10)
     parser.add_argument("--image-size", type=int, default=512)

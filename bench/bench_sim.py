@@ -28,7 +28,7 @@ from PIL import Image
 from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
-from sim.cell import SimCell
+from sim.cell import EMBODIMENTS, SimCell
 from sim.primitives import primitive_object, top_down_grasp
 from sim.world import PhysicsSettings
 
@@ -156,7 +156,7 @@ def main() -> None:
     print(lines[0], flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)
-        for embodiment in ("arm", "floating"):
+        for embodiment in EMBODIMENTS:
             lines.append(_line(embodiment, bench_embodiment(box, embodiment, args.trials), args.trials))
             print(lines[-1], flush=True)
         if args.against is not None:

@@ -12,7 +12,6 @@ SIGINT stop the run and its CoACD processes (exit 143 / 130).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import signal
 import sys
@@ -24,12 +23,13 @@ import numpy as np
 
 from seggrasp.decompose import MAX_COACD_FACES, RUN_TIMEOUT_S, SweepTimeout
 from seggrasp.decompose.config import MAX_SEED
-from seggrasp.detect import DETECTOR_NAMES, check_weights, make_detector
+from seggrasp.detect import check_weights, make_detector
 from seggrasp.fusion import REFINE_MODES
 from seggrasp.io import atomic_save_npy, atomic_write_json
 from seggrasp.labels import PartLabels, find_prompt, read_labels, write_labels
 from seggrasp.mesh import PreparedMesh, load_mesh
 from seggrasp.render import MAX_IMAGE_SIZE, MAX_RIG_PIXELS, MAX_VIEWS, MIN_IMAGE_SIZE, check_rig
+from seggrasp.truth import REAL_DETECTORS, SIMULATED_PRESETS, parse_detector
 
 EXIT_FAILED = 1
 EXIT_BAD_INPUT = 2
@@ -60,13 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     seg.add_argument("mesh", type=Path, metavar="MESH", help="mesh file in metres (OBJ, PLY, OFF, STL, GLB)")
     seg.add_argument("--prompt", action="append", required=True, dest="prompts", metavar="PART",
                      help="part name; repeat for every part (label k = k-th prompt)")
-    seg.add_argument("--detector", choices=DETECTOR_NAMES, default="simulated",
-                     help="box detector (default: simulated, which needs --labels)")
+    seg.add_argument("--detector", default="typical",
+                     help=f"box detector: a simulated preset ({'|'.join(SIMULATED_PRESETS)}, also spelled "
+                          f"simulated:PRESET; needs --labels) or {'|'.join(REAL_DETECTORS)} with --weights "
+                          "(default: typical)")
     seg.add_argument("--weights", help="weights of grounding-dino/owlv2: a local folder, or a hub id (transformers "
                                        "downloads it into the hub cache; without a download, HF_HUB_OFFLINE set or no "
                                        "network, only a hub id already in the cache is taken, others are refused at once)")
-    seg.add_argument("--preset", choices=("perfect", "typical", "hard"), default="typical",
-                     help="error model of the simulated detector (default: typical)")
     seg.add_argument("--labels", type=Path, metavar="GT.json",
                      help="ground-truth part labels of MESH (JSON or NPZ); needed by the simulated detector, and "
                           "when given the per-part IoU and mIoU are printed")
@@ -139,7 +139,8 @@ def run_segment(args: argparse.Namespace) -> dict:
 
     prompts = check_prompts(args.prompts)
     check_output_folder(args.out)
-    check_weights(args.detector, args.weights)  # before any work: an unreachable hub id fails in a moment
+    spec = parse_detector(args.detector, args.weights, seed=args.seed)
+    check_weights(spec.name, spec.weights)  # before any work: an unreachable hub id fails in a moment
     log = logging.getLogger("seggrasp.cli")  # __name__ is "__main__" under python -m
     if args.mesh.is_file():
         log.info("loading %s (%.1f MB)", args.mesh, args.mesh.stat().st_size / 1e6)
@@ -152,8 +153,8 @@ def run_segment(args: argparse.Namespace) -> dict:
     working_truth = (
         PartLabels(ground_truth.parts, prepared.from_source(ground_truth.face_labels)) if ground_truth else None
     )
-    detector = make_detector(args.detector, weights=args.weights, gt_labels=working_truth, preset=args.preset,
-                             seed=args.seed)
+    detector = make_detector(spec.name, weights=spec.weights, gt_labels=working_truth, preset=spec.preset,
+                             seed=spec.seed)
     decomposition = None
     if args.refine != "none":
         from seggrasp.decompose import DecompositionConfig

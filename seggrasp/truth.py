@@ -1,6 +1,9 @@
 """What a harness (the benchmark, the gym env, a lab script) hands an episode besides the cell: the detector it
 chose and, for a labelled object, the ground truth that scores the trials. The method itself never sees either
 ground truth or how its detector was made.
+
+The detectors' one registry is here: `SIMULATED_PRESETS`, `REAL_DETECTORS` and `parse_detector`, which every command
+line uses to read a detector's name into a `DetectorSpec`.
 """
 
 from __future__ import annotations
@@ -12,12 +15,18 @@ import numpy as np
 import trimesh
 
 from seggrasp.cell import GraspOutcome
-from seggrasp.detect import make_detector
+from seggrasp.detect import HF_MODELS, make_detector
 from seggrasp.detect.base import Detector
+from seggrasp.detect.simulated import PRESETS
 from seggrasp.labels import PartLabels
 from seggrasp.mesh import PreparedMesh
 from seggrasp.method import PartPlan
 from seggrasp.objects import ObjectModel
+
+#: The simulated detector's presets (the numbers of its error model: `seggrasp.detect.simulated.PRESETS`).
+SIMULATED_PRESETS = tuple(PRESETS)
+#: The real (transformers) detectors; they need weights.
+REAL_DETECTORS = tuple(HF_MODELS)
 
 
 @dataclass(frozen=True)
@@ -51,6 +60,27 @@ class DetectorSpec:
         if truth_on_source is not None:
             gt = PartLabels(list(prompts), rendered.from_source(np.asarray(truth_on_source, dtype=np.int64)))
         return self.build(gt)
+
+
+def parse_detector(text: str, weights: str | None = None, seed: int = 0) -> DetectorSpec:
+    """The detector named `text`: `simulated:PRESET` (how records name it, `DetectorSpec.label`), a bare PRESET,
+    `simulated` (the default preset) or a real detector, which needs `weights`. ValueError names the problem."""
+    name, colon, preset = text.strip().partition(":")
+    if name in SIMULATED_PRESETS and not colon:
+        name, colon, preset = "simulated", ":", name
+    known = [*SIMULATED_PRESETS, *(f"simulated:{p}" for p in SIMULATED_PRESETS), *REAL_DETECTORS]
+    if name == "simulated":
+        preset = preset if colon else DetectorSpec.preset
+        if preset not in SIMULATED_PRESETS:
+            raise ValueError(f"unknown simulated-detector preset {preset!r} in {text!r}; use one of {known}")
+        if weights:
+            raise ValueError(f"the simulated detector {text!r} takes no weights (drop --weights {weights})")
+        return DetectorSpec("simulated", preset=preset, seed=seed)
+    if name not in REAL_DETECTORS or colon:
+        raise ValueError(f"unknown detector {text!r}; use one of {known}")
+    if not weights:
+        raise ValueError(f"detector {name} needs weights (--weights: a local weights folder or a hub id)")
+    return DetectorSpec(name, weights=str(weights), seed=seed)
 
 
 @dataclass

@@ -21,6 +21,7 @@ from seggrasp.mesh import prepare_mesh
 from seggrasp.metrics import shape_miou
 from seggrasp.labels import check_prompts
 from seggrasp.segment import SegmentationConfig, segment
+from seggrasp.truth import REAL_DETECTORS, SIMULATED_PRESETS, DetectorSpec, parse_detector
 
 PARTS = ["handle", "head"]
 FAST = SegmentationConfig(n_views=6, image_size=128, refine="none")
@@ -64,7 +65,7 @@ def test_segment_coarse_result() -> None:
     np.testing.assert_array_equal(result.labels, result.coarse_labels)
     assert len(result.views) == len(result.detections) == 6
     assert result.views[0].size == (128, 128)
-    assert result.detector == "simulated-perfect" and result.refine == "none" and result.partitions == []
+    assert result.detector == "simulated:perfect" and result.refine == "none" and result.partitions == []
     assert set(result.timings) == {"render", "detect", "vote"}
     assert all(seconds >= 0 for seconds in result.timings.values())
     assert shape_miou(result.labels, labels, 2, trimesh.Trimesh(vertices, faces).area_faces) > 0.6
@@ -127,10 +128,10 @@ def test_cli_end_to_end(hammer_files, tmp_path: Path, capsys) -> None:
     mesh_path, labels_path, labels = hammer_files
     out = tmp_path / "result"
     code = main(["segment", str(mesh_path), "--prompt", "head", "--prompt", "handle", "--labels", str(labels_path),
-                 "--preset", "perfect", "--views", "6", "--image-size", "128", "--refine", "none", "--out", str(out)])
+                 "--detector", "perfect", "--views", "6", "--image-size", "128", "--refine", "none", "--out", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
-    assert "simulated-perfect" in printed and "mIoU" in printed and "head" in printed
+    assert "simulated:perfect" in printed and "mIoU" in printed and "head" in printed
 
     written = read_labels(out / "labels.json")
     assert written.parts == ["head", "handle"]  # parts are the prompts, in order
@@ -149,7 +150,7 @@ def test_cli_end_to_end(hammer_files, tmp_path: Path, capsys) -> None:
         assert (out / picture).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not (out / "partitions.png").exists()
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["detector"] == "simulated-perfect" and summary["refine"] == "none"
+    assert summary["detector"] == "simulated:perfect" and summary["refine"] == "none"
     assert set(summary["evaluation"]["final_area"]["part_iou"]) == {"head", "handle"}
     assert 0.0 <= summary["evaluation"]["final_area"]["miou"] <= 1.0
 
@@ -161,6 +162,8 @@ def test_cli_end_to_end(hammer_files, tmp_path: Path, capsys) -> None:
         (["--labels", "{short}"], "face labels but the mesh"),
         ([], "needs ground-truth part labels"),
         (["--labels", "{labels}", "--detector", "owlv2"], "weights"),
+        (["--labels", "{labels}", "--detector", "simulated-typical"], "unknown detector"),
+        (["--labels", "{labels}", "--weights", "w"], "takes no weights"),
         (["--labels", "{labels}", "--workers", "0"], "workers"),
         (["--labels", "{labels}", "--prompt", "lid", "--prompt", "HANDLE"], "distinct"),
     ],
@@ -304,3 +307,27 @@ def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) 
                 os.kill(pid, signal.SIGKILL)
         if cli.poll() is None:
             cli.kill()
+
+
+@pytest.mark.parametrize("preset", SIMULATED_PRESETS)
+def test_every_spelling_of_a_simulated_detector_reads_as_its_record_label(preset: str) -> None:
+    spec = DetectorSpec("simulated", preset=preset, seed=4)
+    for text in (preset, f"simulated:{preset}", spec.label):
+        assert parse_detector(text, seed=4) == spec
+    assert parse_detector("simulated") == DetectorSpec()  # the default preset
+    assert SimulatedDetector(PartLabels(PARTS, np.zeros(1, dtype=np.int64)), preset=preset).name == spec.label
+
+
+@pytest.mark.parametrize("name", REAL_DETECTORS)
+def test_a_real_detector_needs_weights(name: str) -> None:
+    assert parse_detector(name, "weights/dir", seed=2) == DetectorSpec(name, weights="weights/dir", seed=2)
+    with pytest.raises(ValueError, match="needs weights"):
+        parse_detector(name)
+    with pytest.raises(ValueError, match="unknown detector"):
+        parse_detector(f"{name}:typical", "w")
+
+
+@pytest.mark.parametrize("text", ["", "simulated:", "simulated:flawless", "typical:hard", "owl"])
+def test_unknown_detectors_are_refused_with_the_known_names(text: str) -> None:
+    with pytest.raises(ValueError, match="simulated:typical"):
+        parse_detector(text)

@@ -189,7 +189,7 @@ def test_make_detector(mug) -> None:
     _, gt = mug
     detector = make_detector("simulated", gt_labels=gt, preset="hard", seed=3)
     assert isinstance(detector, SimulatedDetector)
-    assert detector.name == "simulated-hard" and detector.seed == 3
+    assert detector.name == "simulated:hard" and detector.seed == 3
     with pytest.raises(ValueError, match="ground-truth part labels"):
         make_detector("simulated")
     with pytest.raises(ValueError, match="unknown detector 'yolo'"):

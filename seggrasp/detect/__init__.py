@@ -11,10 +11,11 @@ import os
 from seggrasp.detect.base import Detections, Detector
 from seggrasp.labels import PartLabels
 
-DETECTOR_NAMES = ("simulated", "grounding-dino", "owlv2")
 #: The transformers detectors: (model name in messages, example hub id).
 HF_MODELS = {"grounding-dino": ("Grounding DINO", "IDEA-Research/grounding-dino-tiny"),
              "owlv2": ("OWLv2", "google/owlv2-base-patch16-ensemble")}
+#: The names `make_detector` builds (a harness reads a detector's name with `seggrasp.truth.parse_detector`).
+DETECTOR_NAMES = ("simulated", *HF_MODELS)
 
 
 def check_weights(name: str, weights: str | os.PathLike | None) -> None:

@@ -119,7 +119,7 @@ class SimulatedDetector:
         self.preset_name = preset
         self.preset = PRESETS[preset]
         self.seed = int(seed)
-        self.name = f"simulated-{preset}"
+        self.name = f"simulated:{preset}"
 
     def detect(self, views: Sequence[View], prompts: Sequence[str]) -> list[Detections]:
         """One `Detections` per view; `prompt_index` refers to `prompts`."""
