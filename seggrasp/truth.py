@@ -31,8 +31,9 @@ REAL_DETECTORS = tuple(HF_MODELS)
 
 @dataclass(frozen=True)
 class DetectorSpec:
-    """Which detector a harness chose: `name` as `make_detector` takes it; `preset`/`seed` for the simulated
-    detector (which boxes parts from ground truth), `weights` for the real ones. `seed` also seeds the camera rig."""
+    """Which detector a harness chose: `name` as `make_detector` takes it; `preset` for the simulated detector (which
+    boxes parts from ground truth), `weights` for the real ones. `seed`, the detector seed, draws the simulated
+    detector's errors and turns the rendered views' camera rig (docs/design.md section 9)."""
 
     name: str = "simulated"
     preset: str = "typical"

@@ -69,7 +69,8 @@ class CameraRig:
 
 
 class SimCell:
-    """The simulated cell. `objects` defaults to the twin (`seggrasp.objects.load_asset_set()`)."""
+    """The simulated cell. `objects` defaults to the twin (`seggrasp.objects.load_asset_set()`); `seed` is the scene
+    seed of the first scene (`reset`)."""
 
     models_scene = True  # `check_reach` poses the simulated robot among the table and the object
 
@@ -105,7 +106,7 @@ class SimCell:
         self.world = World(gui=gui, physics=physics)
         self.current_object: ObjectModel | None = None
         self.object_body = -1
-        self._seed = -1  # reset(None) takes the next seed
+        self._scene_seed = -1  # reset(None) takes the next scene seed
         self._recorder: TrialRecorder | None = None
         self.reset(seed)
 
@@ -113,9 +114,10 @@ class SimCell:
 
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
         """Rebuild the scene: robot at home, the chosen (or a seeded random) object at a seeded pose, settled.
-        `seed=None` takes the previous seed + 1."""
-        self._seed = int(seed) if seed is not None else self._seed + 1
-        rng = np.random.default_rng(self._seed)
+        `seed` is the scene seed (docs/design.md section 9): it draws the object (when `object_id` is None), its pose
+        and the cameras' noise; `seed=None` takes the previous one + 1."""
+        self._scene_seed = int(seed) if seed is not None else self._scene_seed + 1
+        rng = np.random.default_rng(self._scene_seed)
         if object_id is not None:
             if object_id not in self._by_id:
                 raise ValueError(f"unknown object_id {object_id!r}; known: {sorted(self._by_id)[:20]}")
@@ -131,7 +133,7 @@ class SimCell:
         self.current_object = model
         self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
         self._settle()
-        self._camera_rng = np.random.default_rng([self._seed, 1])
+        self._camera_noise_rng = np.random.default_rng([self._scene_seed, 1])
 
     def _drop_pose(self, model: ObjectModel, rng: np.random.Generator) -> np.ndarray:
         """Seeded pose: yaw uniform, xy jittered around the workspace centre, lowest point 1 mm above the table."""
@@ -156,7 +158,7 @@ class SimCell:
         log.debug("object %s still moving after %.2f s", self.current_object.object_id, self.grasp_settings.settle_time)
 
     def capture(self) -> list[Frame]:
-        return [camera.capture(self.world.client, self._camera_rng) for camera in self.cameras]
+        return [camera.capture(self.world.client, self._camera_noise_rng) for camera in self.cameras]
 
     def object_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
         self._require_scene()

@@ -209,20 +209,20 @@ class SegGraspEnv(gym.Env):
         prompt = options.get("prompt")
         if prompt is not None and not isinstance(prompt, str):
             raise ValueError(f"the prompt must be a string (a part name), got {type(prompt).__name__} {prompt!r}")
-        cell_seed = int(self.np_random.integers(2**31 - 1))
-        self.cell.reset(seed=cell_seed, object_id=options.get("object_id"))
+        scene_seed = int(self.np_random.integers(2**31 - 1))
+        self.cell.reset(seed=scene_seed, object_id=options.get("object_id"))
         if self.backend == "sim":
-            context, truth, prompt = self._twin_subject(cell_seed, prompt)
+            context, truth, prompt = self._twin_subject(scene_seed, prompt)
         elif prompt is None:
             raise ValueError('the real backend needs options={"prompt": ...}: it does not know the object\'s parts')
         else:
-            context, truth = EpisodeContext(options.get("object_id") or "object", "real", [prompt], cell_seed), None
+            context, truth = EpisodeContext(options.get("object_id") or "object", "real", [prompt], scene_seed), None
         if not self.observation_space["prompt"].contains(prompt):
             raise ValueError(f"prompt {prompt!r} must be 1-{PROMPT_MAX_LENGTH} characters from {PROMPT_CHARSET!r}")
         self.prompt = prompt
         self._episode = Episode(self.cell, context, truth=truth)
         self._prompt_index = find_prompt(context.prompts, prompt)
-        self.scene_seed = cell_seed
+        self.scene_seed = scene_seed
         info = {"object_id": getattr(self.cell.current_object, "object_id", None), "prompt": prompt}
         return self._observation(), info
 
