@@ -187,8 +187,8 @@ def test_many_prompts_naming_no_part_do_not_wreck_the_present_parts(mug, tmp_pat
 
 
 def test_prompts_the_detector_never_boxes_are_reported_not_found(mug, tmp_path: Path, capsys) -> None:
-    alone = _segment_summary(mug, tmp_path, ["handle", "body"], "--preset", "perfect")
-    summary = _segment_summary(mug, tmp_path, ["handle", "body", "lid", "spout"], "--preset", "perfect")
+    alone = _segment_summary(mug, tmp_path, ["handle", "body"], "--detector", "perfect")
+    summary = _segment_summary(mug, tmp_path, ["handle", "body", "lid", "spout"], "--detector", "perfect")
     assert summary["not_found"] == ["lid", "spout"]
     assert summary["faces_per_prompt"]["lid"] == summary["faces_per_prompt"]["spout"] == 0
     assert summary["evaluation"]["final_area"] == alone["evaluation"]["final_area"]

@@ -75,7 +75,7 @@ class AntipodalConfig:
     # fingertip pinch of a low part lying on the table, for straight-down poses that have no depth above: the
     # contact 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top) and
     # the fingertips this far above the table; the cell must allow its fingertips that close
-    # (sim.cell.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance)
+    # (sim.grasp_primitive.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance)
     pinch_contact_depths: tuple[float, ...] = (0.015, 0.0165)
     pinch_table_clearance: float = 0.0015
     pinch_max_tilt_deg: float = 10.0
