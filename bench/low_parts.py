@@ -7,7 +7,7 @@ For each (object, part) the twin's mesh is cut by a vertical plane through the p
 long horizontal axis, with the object as the twin drops it on the table (its mesh frame, lowest point on the
 table; settling moves part tops by about a millimetre: twin-physics.md has them measured after settling). Two
 panels show the section (the part in colour, the rest grey) with the sampler's box model of the 2F-85 fingers
-(`seggrasp.grasp.types.GripperGeometry`) straight down at its lowest poses (`AntipodalConfig`):
+(`seggrasp.hands.ROBOTIQ_2F85`) straight down at its lowest poses (`AntipodalConfig`):
 
 - an ordinary grasp: fingertips `table_clearance` above the table, contact at the deepest `contact_depths` entry;
 - a fingertip pinch: fingertips `pinch_table_clearance` above the table, the pads touching the part's side over
@@ -31,7 +31,7 @@ from matplotlib.patches import Rectangle
 
 
 from seggrasp.grasp.antipodal import AntipodalConfig  # noqa: E402
-from seggrasp.grasp.types import GripperGeometry  # noqa: E402
+from seggrasp.hands import ROBOTIQ_2F85, Hand  # noqa: E402
 from seggrasp.io import atomic_write_bytes  # noqa: E402
 from seggrasp.objects import load_asset_set  # noqa: E402
 
@@ -42,7 +42,7 @@ DEFAULT_OUT = Path(__file__).resolve().parents[1] / "docs" / "results" / "strips
 MM = 1000.0
 
 
-def lowest_contacts(config: AntipodalConfig, gripper: GripperGeometry) -> tuple[float, float, float]:
+def lowest_contacts(config: AntipodalConfig, gripper: Hand) -> tuple[float, float, float]:
     """Heights above the table (m) of the lowest ordinary contact, of the lowest pinch contact, and of the top of
     the side a pinch needs (fingertips + `pinch_min_band`), for a straight-down approach."""
     ordinary = config.table_clearance + gripper.tip_beyond_origin - max(config.contact_depths)
@@ -68,7 +68,7 @@ def part_section(mesh: trimesh.Trimesh, part_faces: np.ndarray) -> tuple[np.ndar
     return segments, np.isin(faces, part_faces)
 
 
-def draw_fingers(axes, left: float, right: float, tip_height: float, gripper: GripperGeometry) -> None:
+def draw_fingers(axes, left: float, right: float, tip_height: float, gripper: Hand) -> None:
     """Both fingers' boxes (mm) straight down, inner faces at `left` / `right` (m), fingertips at `tip_height`."""
     origin = tip_height + gripper.tip_beyond_origin
     for inner_face, sign in ((left, -1.0), (right, 1.0)):
@@ -80,7 +80,7 @@ def draw_fingers(axes, left: float, right: float, tip_height: float, gripper: Gr
 
 
 def plot_part(name: str, part: str, segments: np.ndarray, on_part: np.ndarray, heights: tuple[float, float, float],
-              config: AntipodalConfig, gripper: GripperGeometry) -> bytes:
+              config: AntipodalConfig, gripper: Hand) -> bytes:
     """PNG of the two panels (ordinary grasp, fingertip pinch) for one part."""
     ordinary, pinch, band_top = heights
     part_points = segments[on_part].reshape(-1, 2)
@@ -137,7 +137,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         parser.error(str(error))
     objects = {model.object_id: model for model in load_asset_set()}
-    config, gripper = AntipodalConfig(), GripperGeometry()
+    config, gripper = AntipodalConfig(), ROBOTIQ_2F85
     heights = lowest_contacts(config, gripper)
     print(f"lowest ordinary contact {heights[0] * MM:.1f} mm, lowest pinch contact {heights[1] * MM:.1f} mm, "
           f"a pinch needs the part's side from {config.pinch_table_clearance * MM:.1f} up to {heights[2] * MM:.1f} mm")

@@ -19,7 +19,8 @@ import trimesh
 
 from seggrasp.fusion import assign_parts_to_prompts
 from seggrasp.grasp.pads import pad_contacts
-from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+from seggrasp.grasp.types import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 from seggrasp.labels import UNKNOWN
 
 LOG = logging.getLogger(__name__)
@@ -50,7 +51,7 @@ def shapegrasp_grasps(
     votes: np.ndarray,
     part_of_face: np.ndarray,
     T_world_obj: np.ndarray,
-    gripper: GripperGeometry = ROBOTIQ_2F85,
+    gripper: Hand = ROBOTIQ_2F85,
 ) -> list[GraspSet]:
     """One grasp per prompt (object frame), empty where no part received a vote for that prompt.
 
@@ -85,7 +86,8 @@ def shapegrasp_grasps(
         T_world_grasp[:3, 3] = T_world_obj[:3, :3] @ centroid + T_world_obj[:3, 3]
         T_world_grasp[2, 3] = max(T_world_grasp[2, 3], lowest_origin)
         T_obj_grasp = T_obj_world @ T_world_grasp
-        contacts, widths = pad_contacts(T_obj_grasp[None], gripper.max_opening, cloud)
+        contacts, widths = pad_contacts(T_obj_grasp[None], gripper.max_opening, cloud, gripper.pad_half_width,
+                                       gripper.pad_half_length)
         # a grasp whose pads sweep nothing closes on air from the full opening (its contacts stay NaN)
         width = float(widths[0]) if np.isfinite(widths[0]) else gripper.max_opening
         grasps.append(GraspSet(T_obj_grasp[None], [width], [float(votes[part, k])], contacts))

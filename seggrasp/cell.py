@@ -13,6 +13,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import trimesh
 
+from seggrasp.hands import ROBOTIQ_2F85
+
 
 @dataclass
 class Frame:
@@ -25,18 +27,19 @@ class Frame:
     T_world_cam: np.ndarray  # (4, 4) camera (OpenCV) -> world
 
 
-#: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting, shared by the twin
-#: (`sim.gripper.GripperSettings`; a twin run sets another with `python -m sim.evaluate --grip-force N`), the grasp
-#: sampler's torque limit and the real cell (hardware/cell.example.yaml `gripper.force`, at the example's
-#: `limits.max_grip_force`; hardware/config.py's default). The default is the 2F-85's full force: pans, kettles and
-#: hammers held by their handles turn in the fingers under their own weight at 100 N (docs/results/archive/twin-physics-rounds.md,
-#: fifth round); lower it in cell.yaml for fragile objects.
-GRIP_FORCE_RANGE = (20.0, 235.0)
-DEFAULT_GRIP_FORCE = 235.0
-#: The 2F-85's finger speed range (m/s, datasheet: 20-150 mm/s), spanned linearly by the URCap's SPE register
-#: 0-255; shared by the real cell (hardware/robotiq.py, hardware/config.py) and the emulated lab cell's gripper
-#: (sim/lab/robotiq.py), which may not import hardware/.
-FINGER_SPEED_RANGE = (0.020, 0.150)
+#: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting (`seggrasp.hands.ROBOTIQ_2F85`,
+#: where a hand's numbers live), shared by the twin (`sim.gripper.GripperSettings`; a twin run sets another with
+#: `python -m sim.evaluate --grip-force N`), the grasp sampler's torque limit and the real cell
+#: (hardware/cell.example.yaml `gripper.force`, at the example's `limits.max_grip_force`; hardware/config.py's
+#: default). The default is the 2F-85's full force: pans, kettles and hammers held by their handles turn in the
+#: fingers under their own weight at 100 N (docs/results/archive/twin-physics-rounds.md, fifth round); lower it in
+#: cell.yaml for fragile objects.
+GRIP_FORCE_RANGE = ROBOTIQ_2F85.grip_force_range
+DEFAULT_GRIP_FORCE = ROBOTIQ_2F85.default_grip_force
+#: The 2F-85's finger speed range (m/s, datasheet), spanned linearly by the URCap's SPE register 0-255; shared by
+#: the real cell (hardware/robotiq.py, hardware/config.py) and the emulated lab cell's gripper (sim/lab/robotiq.py),
+#: which may not import hardware/.
+FINGER_SPEED_RANGE = ROBOTIQ_2F85.finger_speed_range
 
 # Success as a lab judges it, the same on both backends: the grasped point rises at least LIFT_SUCCESS (m; the
 # lift is 20 cm) and the object moves less than MAX_SLIP (m) and MAX_ROTATION_DEG in the fingers from the close to

@@ -10,7 +10,8 @@ a `Dict`:
 - `"mesh"` (only with `include_mesh=True`): `"vertices"` (V, 3) object frame, `"faces"` (F, 3), and `"T_world_obj"`.
 
 Action: `Box(7,)` float32 = grasp position x, y, z in the world frame (m), grasp orientation as a rotation vector
-(rad; gripper z = approach, x = closing direction), and the expected grasp width (m, 0..0.085). `step` executes the
+(rad; gripper z = approach, x = closing direction), and the expected grasp width (m, 0 to the hand's stroke:
+`seggrasp.hands`, the cell's `hand`). `step` executes the
 grasp-and-lift through the same `seggrasp.episode.Episode` the benchmark and the real cell run, and ends the episode
 (`terminated=True`; `truncated` is always False: there is no time limit). Reward (sim): 1.0 when the object was
 lifted and the prompted part carries most of what the pads touched (ground truth), else 0.0. With `backend="real"`
@@ -38,6 +39,7 @@ from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Frame
 from seggrasp.episode import Episode, EpisodeContext, action_slot
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 from seggrasp.labels import find_prompt
 from seggrasp.objects import ObjectModel
 from seggrasp.truth import GroundTruth
@@ -48,9 +50,17 @@ PROMPT_MAX_LENGTH = 64
 MAX_DEPTH = 10.0
 MAX_INTRINSIC = 1.0e4
 MAX_COORDINATE = 10.0
-#: Action bounds: position (m), rotation vector (rad), width (m).
+#: Action bounds: position (m), rotation vector (rad), width (m: up to the hand's stroke, `action_high`; ACTION_HIGH
+#: is the 2F-85's).
 ACTION_LOW = np.array([0.0, -0.7, -0.05, -np.pi, -np.pi, -np.pi, 0.0], dtype=np.float32)
-ACTION_HIGH = np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, 0.085], dtype=np.float32)
+
+
+def action_high(hand: Hand) -> np.ndarray:
+    """The action's upper bounds for a cell with `hand`: its stroke is the widest grasp."""
+    return np.array([1.0, 0.7, 0.7, np.pi, np.pi, np.pi, hand.stroke], dtype=np.float32)
+
+
+ACTION_HIGH = action_high(ROBOTIQ_2F85)
 #: Camera image widths (pixels; the height is 3/4 of it): up to the D435 colour stream's widest mode.
 IMAGE_WIDTH_RANGE = (16, 1920)
 
@@ -143,7 +153,8 @@ class SegGraspEnv(gym.Env):
             raise ValueError(f"unknown backend {backend!r}; use 'sim' or 'real'")
         self._camera_names = [f.name for f in frames]
         self.observation_space = self._make_observation_space(frames)
-        self.action_space = spaces.Box(ACTION_LOW, ACTION_HIGH, dtype=np.float32)
+        # the real cell has the 2F-85 (hardware/); the twin's cell says which hand it has
+        self.action_space = spaces.Box(ACTION_LOW, action_high(getattr(self.cell, "hand", ROBOTIQ_2F85)), dtype=np.float32)
         self.prompt: str | None = None
         self._episode: Episode | None = None  # set by a successful reset, cleared when the step ends the episode
         self.scene_seed: int | None = None  # the cell's scene seed of the last successful reset

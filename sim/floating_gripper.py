@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
-from sim.gripper import MAX_WIDTH, GripperSettings, Robotiq2F85
+from sim.gripper import GripperSettings, Robotiq2F85
 from sim.gripper_urdf import GRIPPER_BASE_LINK, GRIPPER_DESCRIPTION, inertial_element, simulated_robot, write_urdf
 from sim.world import PATH_RESOLUTION, ROBOT_ASSETS, World, linear_poses, pose_to_pb
 
@@ -97,9 +97,9 @@ class FloatingGripper:
             c.resetJointState(self.body, joint, 0.0, 0.0)
         self._servo(self._anchor)
 
-    def reset_home(self, width: float = MAX_WIDTH) -> None:
+    def reset_home(self, width: float | None = None) -> None:
         self._teleport(self.T_world_home)
-        self.gripper.set_width(width)
+        self.gripper.set_width(self.gripper.max_width if width is None else width)
 
     def plan(self, poses: list[np.ndarray]) -> tuple[list[list[list[np.ndarray]]], str]:
         """One candidate (a floating gripper reaches every pose): the first pose alone, then straight lines with

@@ -18,13 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 from sim.gripper_urdf import ARC_ANGLES, CARRIAGE_MASS, FINGERTIP_LINKS, PAD_LINKS, SIDES, description_arcs
 from sim.world import World
 
-PAD_THICKNESS = 0.00635
-#: Datasheet: 85 mm stroke.
-MAX_WIDTH = 0.085
+#: The 2F-85's pads and stroke (`seggrasp.hands.ROBOTIQ_2F85`).
+PAD_THICKNESS = ROBOTIQ_2F85.pad_thickness
+MAX_WIDTH = ROBOTIQ_2F85.stroke
 #: Force limit (N) and error reduction of the constraint that makes both slides travel together.
 COUPLING_FORCE = 10000.0
 COUPLING_ERP = 0.5
@@ -36,30 +36,51 @@ CENTRING_GAIN = 100.0
 PAD_FRICTION = 1.0
 #: Torsional friction of the pad's rubber patch, as PyBullet's `spinningFriction` (a length: the torque limit about
 #: the contact normal is this x the object's friction x the normal force). A patch with friction mu and normal
-#: force N resists twist with mu N times its mean contact radius; the narrowest patch a 2F-85 pad makes is a line
-#: across its 22 mm width (a round handle), whose mean radius is 22 mm / 4 = 5.5 mm (a flat face under the whole
-#: pad gives more). PyBullet's point contacts alone hold almost no twist.
-PAD_SPINNING_FRICTION = 0.0055
+#: force N resists twist with mu N times its mean contact radius; the narrowest patch a pad makes is a line
+#: across its width (a round handle), whose mean radius is a quarter of the width (`Hand.torsion_radius`; a flat
+#: face under the whole pad gives more). PyBullet's point contacts alone hold almost no twist.
+PAD_SPINNING_FRICTION = ROBOTIQ_2F85.torsion_radius
 PAD_ROLLING_FRICTION = 0.0001
 
 
 @dataclass(frozen=True)
 class GripperSettings:
-    """Actuation: `grip_force` (N, the 2F-85's setting within `GRIP_FORCE_RANGE`) limits each closing slide's
-    velocity motor and is the force each slide pushes with once the fingers stall; closing speed (m/s per pad: the
-    datasheet's 20-150 mm/s), stall detection, and the servo forces of the lifts and the knuckle followers."""
+    """Actuation of a hand (`hand`, `seggrasp.hands`; the 2F-85 by default): `grip_force` (N, within the hand's
+    `grip_force_range`; None: its `default_grip_force`) limits each closing slide's velocity motor and is the force
+    each slide pushes with once the fingers stall; closing speed (m/s per pad, within the hand's
+    `finger_speed_range`; None: the hand's `closing_speed`), stall detection, and the servo forces of the 2F-85's
+    lifts and knuckle followers."""
 
-    grip_force: float = DEFAULT_GRIP_FORCE
-    closing_speed: float = 0.075
+    grip_force: float | None = None
+    closing_speed: float | None = None
     stall_travel: float = 0.0002  # m a slide moves at most over `stall_steps` steps once it has stalled
     stall_steps: int = 8
     lift_force: float = 500.0
     follower_force: float = 50.0
+    hand: Hand = ROBOTIQ_2F85
 
     def __post_init__(self) -> None:
-        low, high = GRIP_FORCE_RANGE
+        if self.grip_force is None:
+            object.__setattr__(self, "grip_force", self.hand.default_grip_force)
+        if self.closing_speed is None:
+            object.__setattr__(self, "closing_speed", self.hand.closing_speed)
+        low, high = self.hand.grip_force_range
         if not low <= self.grip_force <= high:
-            raise ValueError(f"grip_force must be within the 2F-85's {low:g}-{high:g} N, got {self.grip_force}")
+            raise ValueError(f"grip_force must be within the {self.hand.name}'s {low:g}-{high:g} N, got {self.grip_force}")
+        low, high = self.hand.finger_speed_range
+        if not low <= self.closing_speed <= high:
+            raise ValueError(f"closing_speed must be within the {self.hand.name}'s {low:g}-{high:g} m/s, got "
+                             f"{self.closing_speed}")
+
+    def for_hand(self, hand: Hand) -> "GripperSettings":
+        """These settings on another hand: a grip force or closing speed left at this hand's default takes the
+        other hand's default."""
+        if hand == self.hand:
+            return self
+        force = None if self.grip_force == self.hand.default_grip_force else self.grip_force
+        speed = None if self.closing_speed == self.hand.closing_speed else self.closing_speed
+        return GripperSettings(force, speed, self.stall_travel, self.stall_steps, self.lift_force,
+                               self.follower_force, hand)
 
 
 class Robotiq2F85:
@@ -232,7 +253,7 @@ class Robotiq2F85:
 
         A velocity motor with the grip force as its limit reaches that force only when the solver converges: it
         gains at most a carriage's mass times the closing speed per iteration, and a light object between the pads
-        passes on its own mass times that. At 100-300 iterations the pads squeezed 30-100 N of a 235 N setting, and
+        passes on its own mass times that. At 100-300 iterations the pads squeezed 30-100 N of the 2F-85's full force, and
         light objects crept out of the fingers (`bench/bench_replay.py`). The force itself is exact every step."""
         self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
                                                     targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])

@@ -45,7 +45,7 @@ KNUCKLE_MAX = 0.8
 #: Mass (kg) of each slide's carriage: the finger drive's effective mass. The 2F-85's motor drives the fingers
 #: through a self-locking gear, so a contact impulse meets the rotor's inertia times the squared gear ratio, not a
 #: 15 g fingertip; with only the linkage's 58 g on the slide the closing velocity motor (100 iterations) pressed a
-#: box resting on the table with about 130 N of a 235 N setting, with 0.5 kg all of it (the squeeze that holds a
+#: box resting on the table with about 130 N of its full-force setting, with 0.5 kg all of it (the squeeze that holds a
 #: lifted object is `sim.gripper.Robotiq2F85.squeeze`). Its weight is cancelled every step
 #: (`Robotiq2F85._drive_fingers`).
 CARRIAGE_MASS = 0.5

@@ -75,51 +75,14 @@ def pose_error(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return position, angle
 
 
-class UR5Arm:
-    """UR5 + 2F-85 as one fixed-base body at the world origin."""
+class SerialArm:
+    """A fixed-base arm with a gripper on its flange at the world origin: planning through gripper-base poses and
+    joint-space motion with speed limits, shared by the UR5 (`UR5Arm`) and the Franka Panda (`sim.panda.PandaArm`).
+    A subclass sets `world`, `settings`, `body`, `arm_joints`, `gripper`, `home_q`, `joint_forces` and
+    `q_commanded`, and gives the kinematics (`fk`, `ik_solutions`, `ik`), `free_space_paths` and
+    `table_check_links`."""
 
     name = "arm"
-
-    def __init__(self, world: World, settings: ArmSettings | None = None, gripper: GripperSettings | None = None):
-        self.world = world
-        self.settings = settings or ArmSettings()
-        c = world.client
-        self.body = world.load_robot(simulated_urdf(ARM_DESCRIPTION))
-        joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
-        links = {c.getJointInfo(self.body, j)[12].decode(): j for j in range(c.getNumJoints(self.body))}
-        self.arm_joints = [joints[n] for n in ARM_JOINTS]
-        self.gripper_base_link = links[GRIPPER_BASE_LINK]
-        self.gripper = Robotiq2F85(world, self.body, self.gripper_base_link, ARM_DESCRIPTION, gripper)
-        self.q_commanded = HOME_Q.copy()
-
-    # --- kinematics -----------------------------------------------------------------------------------------
-
-    def fk(self, q: np.ndarray) -> np.ndarray:
-        """World -> gripper base for arm joints `q` (robot base at the world origin)."""
-        return T_BASELINK_DHBASE @ dh_forward(np.asarray(q, dtype=float)) @ T_FLANGE_GRIPPER
-
-    def ik_solutions(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> list[np.ndarray]:
-        """Every IK branch that passes the reachability check, nearest to `near` (default: home) first."""
-        near = HOME_Q if near is None else np.asarray(near, dtype=float)
-        T_dh = np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)
-        solutions = []
-        for q in ur_analytic_ik(T_dh):
-            q = near + (q - near + np.pi) % (2 * np.pi) - np.pi  # the 2 pi turn nearest `near`
-            if np.any(q < JOINT_LOWER - 1e-9) or np.any(q > JOINT_UPPER + 1e-9):
-                continue
-            position_error, angle_error = pose_error(self.fk(q), T_world_target)
-            if position_error <= IK_POSITION_TOLERANCE and angle_error <= IK_ANGLE_TOLERANCE:
-                solutions.append(q)
-        return sorted(solutions, key=lambda q: float(np.abs((q - near) * JOINT_WEIGHTS).sum()))
-
-    def ik(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
-        """The reachable IK solution nearest to `near`, or (None, reason)."""
-        solutions = self.ik_solutions(T_world_target, near)
-        if solutions:
-            return solutions[0], ""
-        if not ur_analytic_ik(np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)):
-            return None, "pose outside the UR5's workspace (no IK solution)"
-        return None, "every IK solution violates the joint limits"
 
     # --- planning ---------------------------------------------------------------------------------------------
 
@@ -155,17 +118,10 @@ class UR5Arm:
         """The commanded joint angles."""
         return self.q_commanded.copy()
 
-    def free_space_paths(self, q_start: np.ndarray, q_target: np.ndarray) -> list[list[np.ndarray]]:
-        """Candidate joint-space paths from `q_start` to `q_target` (waypoints <= 0.05 rad apart): straight, or
-        through a raised via point (target base and wrist angles, home shoulder and elbow)."""
-        via = q_target.copy()
-        via[1:3] = HOME_Q[1:3]
-        return [_joint_line(q_start, [q_target]), _joint_line(q_start, [via, q_target])]
-
     # --- motion -----------------------------------------------------------------------------------------------
 
     def reset_home(self, width: float) -> None:
-        self.place(HOME_Q)
+        self.place(self.home_q)
         self.gripper.set_width(width)
 
     def place(self, q: np.ndarray) -> None:
@@ -173,14 +129,14 @@ class UR5Arm:
         c = self.world.client
         for joint, value in zip(self.arm_joints, q):
             c.resetJointState(self.body, joint, float(value))
-        self._command(np.asarray(q, dtype=float), np.zeros(6))
+        self._command(np.asarray(q, dtype=float), np.zeros(len(self.arm_joints)))
 
     def _command(self, q: np.ndarray, qd: np.ndarray) -> None:
         self.q_commanded = q.copy()
         self.world.client.setJointMotorControlArray(
             self.body, self.arm_joints, pybullet.POSITION_CONTROL, targetPositions=q.tolist(),
-            targetVelocities=qd.tolist(), forces=JOINT_FORCES.tolist(), positionGains=[0.3] * 6,
-            velocityGains=[1.0] * 6,
+            targetVelocities=qd.tolist(), forces=self.joint_forces.tolist(),
+            positionGains=[0.3] * len(self.arm_joints), velocityGains=[1.0] * len(self.arm_joints),
         )
 
     def follow(self, path: list[np.ndarray], speed: float, on_step=None) -> None:
@@ -217,10 +173,10 @@ class UR5Arm:
                     on_step()
                 self.world.step()
             q = q_next
-        self._command(q, np.zeros(6))
+        self._command(q, np.zeros(len(self.arm_joints)))
 
     def hold(self, steps: int, on_step=None) -> None:
-        self._command(self.q_commanded, np.zeros(6))
+        self._command(self.q_commanded, np.zeros(len(self.arm_joints)))
         for _ in range(steps):
             if on_step is not None:
                 on_step()
@@ -228,6 +184,59 @@ class UR5Arm:
 
     def joint_positions(self) -> np.ndarray:
         return np.array([s[0] for s in self.world.client.getJointStates(self.body, self.arm_joints)])
+
+class UR5Arm(SerialArm):
+    """UR5 + 2F-85 as one fixed-base body at the world origin."""
+
+    def __init__(self, world: World, settings: ArmSettings | None = None, gripper: GripperSettings | None = None):
+        self.world = world
+        self.settings = settings or ArmSettings()
+        c = world.client
+        self.body = world.load_robot(simulated_urdf(ARM_DESCRIPTION))
+        joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
+        links = {c.getJointInfo(self.body, j)[12].decode(): j for j in range(c.getNumJoints(self.body))}
+        self.arm_joints = [joints[n] for n in ARM_JOINTS]
+        self.gripper_base_link = links[GRIPPER_BASE_LINK]
+        self.gripper = Robotiq2F85(world, self.body, self.gripper_base_link, ARM_DESCRIPTION, gripper)
+        self.home_q = HOME_Q
+        self.joint_forces = JOINT_FORCES
+        self.q_commanded = HOME_Q.copy()
+
+    # --- kinematics -----------------------------------------------------------------------------------------
+
+    def fk(self, q: np.ndarray) -> np.ndarray:
+        """World -> gripper base for arm joints `q` (robot base at the world origin)."""
+        return T_BASELINK_DHBASE @ dh_forward(np.asarray(q, dtype=float)) @ T_FLANGE_GRIPPER
+
+    def ik_solutions(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> list[np.ndarray]:
+        """Every IK branch that passes the reachability check, nearest to `near` (default: home) first."""
+        near = HOME_Q if near is None else np.asarray(near, dtype=float)
+        T_dh = np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)
+        solutions = []
+        for q in ur_analytic_ik(T_dh):
+            q = near + (q - near + np.pi) % (2 * np.pi) - np.pi  # the 2 pi turn nearest `near`
+            if np.any(q < JOINT_LOWER - 1e-9) or np.any(q > JOINT_UPPER + 1e-9):
+                continue
+            position_error, angle_error = pose_error(self.fk(q), T_world_target)
+            if position_error <= IK_POSITION_TOLERANCE and angle_error <= IK_ANGLE_TOLERANCE:
+                solutions.append(q)
+        return sorted(solutions, key=lambda q: float(np.abs((q - near) * JOINT_WEIGHTS).sum()))
+
+    def ik(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+        """The reachable IK solution nearest to `near`, or (None, reason)."""
+        solutions = self.ik_solutions(T_world_target, near)
+        if solutions:
+            return solutions[0], ""
+        if not ur_analytic_ik(np.linalg.inv(T_BASELINK_DHBASE) @ T_world_target @ np.linalg.inv(T_FLANGE_GRIPPER)):
+            return None, "pose outside the UR5's workspace (no IK solution)"
+        return None, "every IK solution violates the joint limits"
+
+    def free_space_paths(self, q_start: np.ndarray, q_target: np.ndarray) -> list[list[np.ndarray]]:
+        """Candidate joint-space paths from `q_start` to `q_target` (waypoints <= 0.05 rad apart): straight, or
+        through a raised via point (target base and wrist angles, home shoulder and elbow)."""
+        via = q_target.copy()
+        via[1:3] = HOME_Q[1:3]
+        return [_joint_line(q_start, [q_target]), _joint_line(q_start, [via, q_target])]
 
     def table_check_links(self) -> tuple[int, list[int]]:
         """Links that must stay clear of the table: everything from the upper arm on (base and shoulder sit on it)."""

@@ -8,17 +8,17 @@ import trimesh
 from bench import low_parts  # noqa: E402
 
 from seggrasp.grasp.antipodal import AntipodalConfig  # noqa: E402
-from seggrasp.grasp.types import GripperGeometry  # noqa: E402
+from seggrasp.hands import ROBOTIQ_2F85  # noqa: E402
 
 
 def test_the_lowest_contacts_follow_the_sampler_settings():
-    ordinary, pinch, band_top = low_parts.lowest_contacts(AntipodalConfig(), GripperGeometry())
+    ordinary, pinch, band_top = low_parts.lowest_contacts(AntipodalConfig(), ROBOTIQ_2F85)
     # fingertips 3.5 mm up, 20 mm past the pad centres, contact at most 12 mm towards them
     assert ordinary == pytest.approx(0.0115)
     assert pinch == pytest.approx(0.0015 + 0.020 - 0.0165)
     assert band_top == pytest.approx(0.0045)
     deeper = AntipodalConfig(table_clearance=0.002)
-    assert low_parts.lowest_contacts(deeper, GripperGeometry())[0] == pytest.approx(0.010)
+    assert low_parts.lowest_contacts(deeper, ROBOTIQ_2F85)[0] == pytest.approx(0.010)
 
 
 def test_the_section_cuts_across_the_part_and_marks_its_segments():

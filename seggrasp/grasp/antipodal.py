@@ -39,10 +39,10 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE
-from seggrasp.grasp.pads import PAD_HALF_LENGTH, PAD_HALF_WIDTH, box_corners, pad_bands, pressed_centres, sweep
+from seggrasp.grasp.pads import box_corners, pad_bands, pressed_centres, sweep
 from seggrasp.grasp.poses import envelope_poses, level_poses, poses_around_axes
-from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+from seggrasp.grasp.types import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 LOG = logging.getLogger(__name__)
 
@@ -69,14 +69,14 @@ class AntipodalConfig:
     min_collision_points: int = 1500
     max_collision_points: int = 6000
     table_clearance: float = 0.0035
-    # contacts this far from the pad centres (m, + towards the fingertips), tried in this order (deepest first);
-    # the 37.5 mm pads leave >= 6.75 mm to either end
-    contact_depths: tuple[float, ...] = (-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012)
+    # contacts this far from the pad centres (m, + towards the fingertips), tried in this order (deepest first):
+    # the hand's (`Hand.contact_depths`; the defaults are the 2F-85's, `for_hand` takes another hand's)
+    contact_depths: tuple[float, ...] = ROBOTIQ_2F85.contact_depths
     # fingertip pinch of a low part lying on the table, for straight-down poses that have no depth above: the
-    # contact 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top) and
-    # the fingertips this far above the table; the cell must allow its fingertips that close
+    # contact near the pad's end (`Hand.pinch_contact_depths`: the pad still touches the part's side from there to
+    # its top) and the fingertips this far above the table; the cell must allow its fingertips that close
     # (sim.grasp_primitive.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance)
-    pinch_contact_depths: tuple[float, ...] = (0.015, 0.0165)
+    pinch_contact_depths: tuple[float, ...] = ROBOTIQ_2F85.pinch_contact_depths
     pinch_table_clearance: float = 0.0015
     pinch_max_tilt_deg: float = 10.0
     # and the pads must touch the part's side over at least this much of their length (a pinch on the last
@@ -84,8 +84,8 @@ class AntipodalConfig:
     # `pinch_band_tolerance` of each pad's first touch
     pinch_min_band: float = 0.003
     pinch_band_tolerance: float = 0.0015
-    pad_half_width: float = PAD_HALF_WIDTH
-    pad_half_length: float = PAD_HALF_LENGTH
+    pad_half_width: float = ROBOTIQ_2F85.pad_half_width
+    pad_half_length: float = ROBOTIQ_2F85.pad_half_length
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
     # a level pose (`level_poses`) needs the surface at both pads' first touch to face them within this angle (deg):
     # the pads then lie along it (a line across a round handle), not on an edge of a flared or slanted wall
@@ -98,11 +98,11 @@ class AntipodalConfig:
     envelope_directions: int = 8
     # gravity torque: the object's assumed mass (kg) when none is given, the grip force (N) and the effective
     # radius (m) of the pads' torsional friction; the limit is 2 * mu * grip_force * radius, the radius being the
-    # mean contact radius of the narrowest patch a 22 mm pad makes (a line across its width: 22 mm / 4, as the
-    # twin's pads, sim/gripper.py PAD_SPINNING_FRICTION)
+    # mean contact radius of the narrowest patch a pad makes (a line across its width: `Hand.torsion_radius`, as
+    # the twin's pads, sim/gripper.py PAD_SPINNING_FRICTION)
     default_mass: float = 0.3
-    grip_force: float = DEFAULT_GRIP_FORCE
-    torsion_radius: float = 0.0055
+    grip_force: float = ROBOTIQ_2F85.default_grip_force
+    torsion_radius: float = ROBOTIQ_2F85.torsion_radius
     weight_torque: float = 0.3
     weight_antipodality: float = 0.4
     weight_center_of_mass: float = 0.4
@@ -126,6 +126,16 @@ class AntipodalConfig:
         if not 0 <= self.pinch_max_tilt_deg <= 90:
             raise ValueError(f"pinch_max_tilt_deg must be in [0, 90], got {self.pinch_max_tilt_deg}")
 
+    @classmethod
+    def for_hand(cls, hand: Hand, **settings) -> "AntipodalConfig":
+        """The sampler's parameters for `hand`: its pads, contact depths, default grip force and torsion radius;
+        `settings` override any field (e.g. `grip_force`)."""
+        return cls(**{
+            "pad_half_width": hand.pad_half_width, "pad_half_length": hand.pad_half_length,
+            "contact_depths": hand.contact_depths, "pinch_contact_depths": hand.pinch_contact_depths,
+            "grip_force": hand.default_grip_force, "torsion_radius": hand.torsion_radius, **settings,
+        })
+
     @property
     def all_contact_depths(self) -> np.ndarray:
         """The normal contact depths, then the pinch depths (the indices `_deepest_free_depths` returns)."""
@@ -142,8 +152,10 @@ class AntipodalSampler:
 
     name = "antipodal"
 
-    def __init__(self, config: AntipodalConfig | None = None, gripper: GripperGeometry = ROBOTIQ_2F85) -> None:
-        self.config = config or AntipodalConfig()
+    def __init__(self, config: AntipodalConfig | None = None, gripper: Hand = ROBOTIQ_2F85) -> None:
+        """`gripper` is the hand (`seggrasp.hands`); `config` defaults to `AntipodalConfig.for_hand(gripper)` (a
+        config given for another hand should be made with `for_hand` too: its pads and depths are the hand's)."""
+        self.config = config or AntipodalConfig.for_hand(gripper)
         self.gripper = gripper
 
     def generate(

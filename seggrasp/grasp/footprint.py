@@ -1,6 +1,6 @@
 """What lies under a grasp's pads: the faces nearest its contacts, and the surface each pad closes on.
 
-A grasp's two contact points say little about what its 22 x 37.5 mm pads will press on. `PadFootprint` finds, on a
+A grasp's two contact points say little about what its pads (a 2F-85's are 22 x 37.5 mm) will press on. `PadFootprint` finds, on a
 dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
 its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.pads.pad_touches`), with the pad widened
 by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge
@@ -17,9 +17,9 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from seggrasp.grasp.antipodal import AntipodalConfig
 from seggrasp.grasp.pads import pad_touches
-from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+from seggrasp.grasp.types import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 
 def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
@@ -43,7 +43,7 @@ class PadFootprint:
     max_points: int = 40000
     min_share: float = 0.5
     seed: int = 0
-    gripper: GripperGeometry = field(default=ROBOTIQ_2F85, repr=False)
+    gripper: Hand = field(default=ROBOTIQ_2F85, repr=False)
 
     def __post_init__(self) -> None:
         if min(self.margin, self.tolerance) < 0 or self.point_spacing <= 0:
@@ -70,8 +70,8 @@ class PadSurface:
         """Per grasp, the mesh face of every sample point the -x pad and the +x pad close on (one entry per point,
         so faces repeat in proportion to their area under the pad; empty where a pad touches nothing)."""
         fp = self.footprint
-        half_width = AntipodalConfig.pad_half_width + fp.margin
-        half_length = AntipodalConfig.pad_half_length + fp.margin
+        half_width = fp.gripper.pad_half_width + fp.margin
+        half_length = fp.gripper.pad_half_length + fp.margin
         openings = fp.gripper.pre_grasp_opening(grasps.widths)
         reach = np.sqrt((0.5 * openings) ** 2 + half_width**2 + half_length**2)
         touched = []

@@ -29,7 +29,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import trimesh
 
-from seggrasp.grasp.types import ROBOTIQ_2F85, GraspSet, GripperGeometry
+from seggrasp.grasp.types import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 
 @dataclass
@@ -61,7 +62,7 @@ class LearnedGraspGenerator:
         model: PointCloudGraspModel,
         n_points: int = 30000,
         T_model_grasp: np.ndarray | None = None,
-        gripper: GripperGeometry = ROBOTIQ_2F85,
+        gripper: Hand = ROBOTIQ_2F85,
         name: str | None = None,
     ) -> None:
         if not isinstance(model, PointCloudGraspModel):

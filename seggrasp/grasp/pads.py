@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 
-#: The Robotiq 2F-85's pad footprint, 22 x 37.5 mm (half width, half length, m).
-PAD_HALF_WIDTH = 0.011
-PAD_HALF_LENGTH = 0.01875
+from seggrasp.hands import ROBOTIQ_2F85
+
+#: The Robotiq 2F-85's pad footprint (half width, half length, m; `seggrasp.hands`), the default of `pad_contacts`.
+PAD_HALF_WIDTH = ROBOTIQ_2F85.pad_half_width
+PAD_HALF_LENGTH = ROBOTIQ_2F85.pad_half_length
 
 
 def box_corners(boxes: np.ndarray) -> np.ndarray:

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from seggrasp.grasp.types import GripperGeometry
+from seggrasp.hands import Hand
 
 if TYPE_CHECKING:
     from seggrasp.grasp.antipodal import AntipodalConfig
@@ -66,7 +66,7 @@ def level_poses(
 
 
 def envelope_poses(
-    cloud: np.ndarray, plane: np.ndarray, gripper: GripperGeometry, cfg: AntipodalConfig
+    cloud: np.ndarray, plane: np.ndarray, gripper: Hand, cfg: AntipodalConfig
 ) -> tuple[np.ndarray, np.ndarray]:
     """Straight-down poses closing level with the table around the whole cluster of surface that lies under the
     fingers on a line through each of `envelope_centres` points of `cloud`, in `envelope_directions` directions,

@@ -1,4 +1,5 @@
-"""Grasp containers, the parallel-gripper geometry and the `GraspGenerator` protocol.
+"""Grasp containers and the `GraspGenerator` protocol; the parallel-gripper geometry is a hand's description
+(`seggrasp.hands`: `Hand`, here also under its former name `GripperGeometry`, and `ROBOTIQ_2F85`).
 
 Gripper frame (docs/design.md section 3): z = approach direction, x = closing direction (finger to finger), origin between the
 pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two contact points of an antipodal grasp.
@@ -12,54 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import trimesh
 
-
-@dataclass(frozen=True)
-class GripperGeometry:
-    """Box model of a parallel gripper for collision checks, in the gripper frame (metres).
-
-    Defaults are the Robotiq 2F-85 as the simulated one is shaped (ray-probed profile of its collision geometry,
-    gripper frame at the origin, sim/gripper.py): 85 mm stroke, origin between the pad centres, fingertips
-    `tip_beyond_origin` past it along +z.
-
-    - `finger_boxes` move with the fingers; each is (inner x, outer x, half y, z min, z max) with x measured
-      outwards from the finger's inner face at half the opening (mirrored for the other finger): the pad and the
-      tip of the finger, then its wedge-shaped base that leans inwards toward the knuckles;
-    - `centre_boxes` are fixed and centred on the z axis; each is (half x, half y, z min, z max): the knuckles,
-      the gripper body and the wrist behind it.
-    """
-
-    max_opening: float = 0.085
-    tip_beyond_origin: float = 0.020
-    finger_boxes: tuple[tuple[float, float, float, float, float], ...] = (
-        (0.0, 0.024, 0.012, -0.020, 0.020),
-        (-0.008, 0.036, 0.018, -0.045, -0.020),
-    )
-    centre_boxes: tuple[tuple[float, float, float, float], ...] = (
-        (0.078, 0.022, -0.095, -0.045),
-        (0.047, 0.043, -0.150, -0.045),
-        (0.045, 0.045, -0.270, -0.150),
-    )
-    pre_grasp_margin: float = 0.012  # extra opening on each side of the contacts while approaching
-
-    def pre_grasp_opening(self, width: np.ndarray | float) -> np.ndarray:
-        """Finger separation while approaching a grasp of contact distance `width` (capped at the stroke)."""
-        return np.minimum(np.asarray(width, dtype=np.float64) + 2.0 * self.pre_grasp_margin, self.max_opening)
-
-    def boxes(self, opening: float) -> np.ndarray:
-        """Axis-aligned boxes (B, 2, 3) [min corner, max corner] of the gripper opened to `opening`: both fingers'
-        boxes (-x finger first), then the centre boxes."""
-        half = 0.5 * float(opening)
-        boxes = []
-        for sign in (-1.0, 1.0):
-            for inner, outer, half_y, z_min, z_max in self.finger_boxes:
-                x0, x1 = sign * (half + inner), sign * (half + outer)
-                boxes.append([[min(x0, x1), -half_y, z_min], [max(x0, x1), half_y, z_max]])
-        for half_x, half_y, z_min, z_max in self.centre_boxes:
-            boxes.append([[-half_x, -half_y, z_min], [half_x, half_y, z_max]])
-        return np.array(boxes, dtype=np.float64)
-
-
-ROBOTIQ_2F85 = GripperGeometry()
+from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, GripperGeometry, Hand  # noqa: F401 (re-exported)
 
 
 @dataclass

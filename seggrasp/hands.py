@@ -1,0 +1,176 @@
+"""The hands: one description per parallel gripper, the only place a hand's numbers are written.
+
+Everything the method and the twin know about a gripper comes from its `Hand`: the stroke, the pads, the box model
+of its fingers and body that the grasp sampler checks for collisions, the contact depths it tries along the pads,
+the grip force range and the finger speed. The grasp sampler, the pad footprint, the pinch and envelope poses, the
+ShapeGrasp baseline, the learned-generator adapter, the twin's drive, its grasp primitive, `check_reach` and the gym
+action space read it (`seggrasp.grasp`, `sim.gripper`, `sim.panda_hand`, `sim.cell`, `sim.env`).
+
+Gripper frame (docs/design.md section 3): z = approach, x = closing direction (finger to finger), origin between the
+pad centres with the fingers open. Box models are in that frame, in metres.
+
+Two hands:
+
+- `ROBOTIQ_2F85`: the Robotiq 2F-85 of the UR5 cell. Datasheet: 85 mm stroke, grip force 20-235 N, finger speed
+  20-150 mm/s; pads 22 x 37.5 mm. Its box model is a ray-probed profile of the simulated gripper's collision
+  geometry (sim/gripper_urdf.py).
+- `FRANKA_HAND`: the Franka Hand of the Franka Panda. Franka's datasheet (as issue 36 quotes it): 80 mm stroke
+  (40 mm per finger), 70 N continuous and 140 N maximum grip force. The finger speed: libfranka's
+  `Gripper::move(width, speed)`/`grasp(width, speed, force)` take the closing speed in m/s and the Franka Hand
+  tops out at 0.1 m/s closing (frankx's `Gripper::max_speed = 0.1`, https://pantor.github.io/frankx/
+  classfrankx_1_1_gripper.html; its `max_width` 0.081 m plus a 4 mm jaw calibration), i.e. 50 mm/s per finger;
+  frankx's default is 0.04 m/s. Franka's own datasheet page was not among the stored references this was written
+  from: the 70/140 N and 80 mm are the issue's figures (70 N is also the force NVlabs' 6-DOF GraspNet used on its
+  Panda, NVlabs/6dof-graspnet#12). The grip force's lower bound (no datasheet figure found) is taken as 20 N, the
+  force libfranka's and frankx's examples grasp with (`Gripper(..., force=20.0)`). Pads: the fingertip's flat
+  inner face in pybullet_data's franka_panda/meshes/collision/finger.obj, 17.4 mm wide (x +-8.7 mm) and 17.6 mm
+  long (z 36.1-53.7 mm of the finger), the standard fingers' rubber-free aluminium tips; the box model is that
+  finger and the hand body (hand.obj: 208 mm across the closing direction, 63 mm deep) with the wrist behind it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+class _Stroke:
+    """`hand.max_opening`: the hand's stroke. Read on the class (`GripperGeometry.max_opening`, which
+    hardware/config.py's STROKE_2F85 does), the 2F-85's, the hand the real cell has."""
+
+    def __get__(self, hand, owner=None) -> float:
+        return (ROBOTIQ_2F85 if hand is None else hand).stroke
+
+
+@dataclass(frozen=True)
+class Hand:
+    """One parallel gripper (module docstring).
+
+    - `stroke`: the widest pad gap (m);
+    - `pad_half_width`, `pad_half_length`: the pad's footprint across the closing plane (y) and along the approach
+      (z); `pad_thickness`: how far the two pad links' frames stand behind their contact faces together (the
+      simulated description's pad gap is the distance between those frames minus this);
+    - `tip_beyond_origin`: how far the fingertips reach past the origin along +z;
+    - `finger_boxes` move with the fingers; each is (inner x, outer x, half y, z min, z max) with x measured
+      outwards from the finger's inner face at half the opening (mirrored for the other finger);
+      `centre_boxes` are fixed and centred on the z axis: (half x, half y, z min, z max);
+    - `pre_grasp_margin`: extra opening on each side of the contacts while approaching;
+    - `contact_depths`: where along the pads (m from their centre, + towards the fingertips) the sampler tries the
+      contacts, deepest first; `pinch_contact_depths`: those of a fingertip pinch of a part lying flat;
+    - `grip_force_range` (N) and `default_grip_force`; `continuous_grip_force` where the hand distinguishes a
+      force it holds indefinitely from its maximum;
+    - `finger_speed_range` (m/s) and `closing_speed`, the twin's closing speed of each pad (m/s).
+    """
+
+    name: str
+    stroke: float
+    pad_half_width: float
+    pad_half_length: float
+    pad_thickness: float
+    tip_beyond_origin: float
+    finger_boxes: tuple[tuple[float, float, float, float, float], ...]
+    centre_boxes: tuple[tuple[float, float, float, float], ...]
+    pre_grasp_margin: float
+    contact_depths: tuple[float, ...]
+    pinch_contact_depths: tuple[float, ...]
+    grip_force_range: tuple[float, float]
+    default_grip_force: float
+    finger_speed_range: tuple[float, float]
+    closing_speed: float
+    continuous_grip_force: float | None = None
+
+    max_opening = _Stroke()
+
+    def __post_init__(self) -> None:
+        low, high = self.grip_force_range
+        if not 0 < low <= self.default_grip_force <= high:
+            raise ValueError(f"{self.name}: default grip force {self.default_grip_force} outside {low}-{high} N")
+        if any(abs(d) >= self.pad_half_length for d in self.contact_depths + self.pinch_contact_depths):
+            raise ValueError(f"{self.name}: contact depths must lie on the pad (|d| < {self.pad_half_length})")
+        if min(self.stroke, self.pad_half_width, self.pad_half_length) <= 0:
+            raise ValueError(f"{self.name}: stroke and pad size must be positive")
+
+    @property
+    def torsion_radius(self) -> float:
+        """The mean contact radius (m) of the narrowest patch a pad makes: a line across its width, width / 4."""
+        return self.pad_half_width / 2.0
+
+    def pre_grasp_opening(self, width: np.ndarray | float) -> np.ndarray:
+        """Finger separation while approaching a grasp of contact distance `width` (capped at the stroke)."""
+        return np.minimum(np.asarray(width, dtype=np.float64) + 2.0 * self.pre_grasp_margin, self.stroke)
+
+    def boxes(self, opening: float) -> np.ndarray:
+        """Axis-aligned boxes (B, 2, 3) [min corner, max corner] of the gripper opened to `opening`: both fingers'
+        boxes (-x finger first), then the centre boxes."""
+        half = 0.5 * float(opening)
+        boxes = []
+        for sign in (-1.0, 1.0):
+            for inner, outer, half_y, z_min, z_max in self.finger_boxes:
+                x0, x1 = sign * (half + inner), sign * (half + outer)
+                boxes.append([[min(x0, x1), -half_y, z_min], [max(x0, x1), half_y, z_max]])
+        for half_x, half_y, z_min, z_max in self.centre_boxes:
+            boxes.append([[-half_x, -half_y, z_min], [half_x, half_y, z_max]])
+        return np.array(boxes, dtype=np.float64)
+
+
+#: The box model's former name (seggrasp.grasp.types re-exports it).
+GripperGeometry = Hand
+
+ROBOTIQ_2F85 = Hand(
+    name="robotiq_2f85",
+    stroke=0.085,
+    pad_half_width=0.011,
+    pad_half_length=0.01875,
+    pad_thickness=0.00635,
+    tip_beyond_origin=0.020,
+    finger_boxes=(
+        (0.0, 0.024, 0.012, -0.020, 0.020),  # the pad and the tip of the finger
+        (-0.008, 0.036, 0.018, -0.045, -0.020),  # its wedge-shaped base, leaning inwards toward the knuckles
+    ),
+    centre_boxes=(
+        (0.078, 0.022, -0.095, -0.045),  # the knuckles
+        (0.047, 0.043, -0.150, -0.045),  # the gripper body
+        (0.045, 0.045, -0.270, -0.150),  # the wrist behind it
+    ),
+    pre_grasp_margin=0.012,
+    # 3 mm steps, never within 6.75 mm of either end of the 37.5 mm pads
+    contact_depths=(-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012),
+    # 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top)
+    pinch_contact_depths=(0.015, 0.0165),
+    grip_force_range=(20.0, 235.0),
+    # its full force: pans, kettles and hammers held by their handles turn in the fingers under their own weight
+    # at 100 N (docs/results/archive/twin-physics-rounds.md, fifth round)
+    default_grip_force=235.0,
+    finger_speed_range=(0.020, 0.150),
+    closing_speed=0.075,
+)
+
+FRANKA_HAND = Hand(
+    name="franka_hand",
+    stroke=0.080,
+    pad_half_width=0.0087,
+    pad_half_length=0.0088,
+    # the finger links' frames lie on their inner faces (finger.obj: y = 0 from z 36 to 54 mm)
+    pad_thickness=0.0,
+    tip_beyond_origin=0.0088,
+    finger_boxes=(
+        (0.0, 0.0145, 0.0105, -0.009, 0.0088),  # the fingertip, 14.3 mm thick behind its pad
+        (0.0, 0.0265, 0.0105, -0.045, -0.009),  # the finger's base, 26.4 mm thick at the hand
+    ),
+    centre_boxes=(
+        (0.1045, 0.032, -0.1295, -0.0370),  # the hand body (hand.obj), 45 mm behind the fingers' root
+        (0.050, 0.050, -0.2600, -0.1295),  # the wrist (panda_link7 and the flange) behind it
+    ),
+    pre_grasp_margin=0.012,
+    # 3 mm steps within the 17.6 mm pad, 2.8 mm clear of either end
+    contact_depths=(-0.006, -0.003, 0.0, 0.003, 0.006),
+    pinch_contact_depths=(0.0065,),
+    grip_force_range=(20.0, 140.0),
+    default_grip_force=70.0,
+    continuous_grip_force=70.0,
+    finger_speed_range=(0.005, 0.050),
+    closing_speed=0.050,
+)
+
+HANDS = {hand.name: hand for hand in (ROBOTIQ_2F85, FRANKA_HAND)}
