@@ -1,7 +1,7 @@
 """`SimCell`: the PyBullet twin of the robot cell, implementing `seggrasp.cell.Cell`.
 
-One episode: `reset(seed, object_id)` builds the scene (table, UR5 + 2F-85 or a floating 2F-85, one object at a
-seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gives the twin's mesh and pose, and
+One episode: `reset(seed, object_id)` builds the scene (table, the robot system - a UR5 + 2F-85, a Franka Panda +
+Franka Hand (`robot="panda"`, `sim.panda`) or a floating 2F-85 - one object at a seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gives the twin's mesh and pose, and
 `execute(T_world_grasp, width)` runs the grasp-and-lift primitive (`sim.grasp_primitive`).
 
 `record_next(path)` makes the next `execute()` write a picture strip of its stages (`sim.recording`).
@@ -18,13 +18,14 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Frame, GraspOutcome
+from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85
 from seggrasp.objects import ObjectModel
 from seggrasp.perception import Workspace
 from seggrasp.views import look_at
 from sim.cameras import DepthNoise, VirtualD435
 from sim.floating_gripper import FloatingGripper
 from sim.grasp_primitive import GraspPrimitive, GraspSettings
-from sim.gripper import MAX_WIDTH, GripperSettings
+from sim.gripper import GripperSettings
 from sim.recording import TrialRecorder
 from sim.robot import ArmSettings, UR5Arm
 from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSettings, World
@@ -32,6 +33,8 @@ from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSe
 log = logging.getLogger(__name__)
 
 EMBODIMENTS = ("arm", "floating")
+#: The robot systems: the arm and its hand (`seggrasp.hands`).
+ROBOTS = {"ur5": ROBOTIQ_2F85, "panda": FRANKA_HAND}
 #: Half side (m) of the square workspace box around the drop zone that perception crops to.
 WORKSPACE_HALF_SIZE = 0.25
 #: Floating gripper's home: above the workspace, pointing down.
@@ -70,7 +73,9 @@ class CameraRig:
 
 class SimCell:
     """The simulated cell. `objects` defaults to the twin (`seggrasp.objects.load_asset_set()`); `seed` is the scene
-    seed of the first scene (`reset`)."""
+    seed of the first scene (`reset`); `robot` the system (`ROBOTS`: "ur5", the UR5 with the 2F-85, or "panda", the
+    Franka Panda with the Franka Hand; the floating gripper is the 2F-85's), whose hand is `hand`. Everything else -
+    the table, the object's placement, the cameras, the lift, the hold and the success test - is the same for both."""
 
     models_scene = True  # `check_reach` poses the simulated robot among the table and the object
 
@@ -79,6 +84,7 @@ class SimCell:
         objects: list[ObjectModel] | None = None,
         embodiment: str = "arm",
         seed: int = 0,
+        robot: str = "ur5",
         gui: bool = False,
         n_cameras: int = 2,
         image_size: tuple[int, int] = (640, 480),
@@ -90,6 +96,10 @@ class SimCell:
     ) -> None:
         if embodiment not in EMBODIMENTS:
             raise ValueError(f"unknown embodiment {embodiment!r}; use one of {EMBODIMENTS}")
+        if robot not in ROBOTS:
+            raise ValueError(f"unknown robot {robot!r}; use one of {tuple(ROBOTS)}")
+        if robot != "ur5" and embodiment != "arm":
+            raise ValueError(f"the floating gripper is the 2F-85's; robot={robot!r} needs embodiment='arm'")
         if objects is None:
             from seggrasp.objects import load_asset_set
 
@@ -99,6 +109,8 @@ class SimCell:
         self.objects = list(objects)
         self._by_id = {o.object_id: o for o in self.objects}
         self.embodiment_name = embodiment
+        self.robot_name = robot
+        self.hand = ROBOTS[robot]
         self.grasp_settings = grasp or GraspSettings()
         self._arm_settings, self._gripper_settings = arm, gripper
         self.rig = CameraRig(n_cameras, image_size[0], image_size[1], noise=camera_noise or DepthNoise())
@@ -125,11 +137,15 @@ class SimCell:
         else:
             model = self.objects[int(rng.integers(len(self.objects)))]
         self.world.reset()
-        if self.embodiment_name == "arm":
+        if self.robot_name == "panda":
+            from sim.panda import PandaArm
+
+            self.robot = PandaArm(self.world, self._arm_settings, self._gripper_settings)
+        elif self.embodiment_name == "arm":
             self.robot = UR5Arm(self.world, self._arm_settings, self._gripper_settings)
         else:
             self.robot = FloatingGripper(self.world, FLOATING_HOME, self._gripper_settings)
-        self.robot.reset_home(MAX_WIDTH)
+        self.robot.reset_home(self.hand.stroke)
         self.current_object = model
         self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
         self._settle()

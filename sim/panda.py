@@ -1,0 +1,253 @@
+"""The Franka Panda with the Franka Hand: the twin's second robot system (`SimCell(robot="panda")`).
+
+The description is pybullet_data's `franka_panda/panda.urdf` (Franka Emika's, Apache-2.0), as the twin simulates it
+(`panda_urdf`): absolute mesh paths, the fingers' collision hulls set back by PyBullet's contact margin
+(`sim.world.COLLISION_SKIN`), the fingers' mimic joint removed (`sim.panda_hand` couples them as one motor
+does), each finger carrying the drive's effective mass with a small inertia (the description gives every link
+0.1 kg m^2), the finger joints' effort at the hand's maximum grip force (`seggrasp.hands.FRANKA_HAND`).
+
+Kinematics: PyBullet's forward kinematics of the description and its damped-least-squares IK, run on a kinematic
+copy of the arm in a physics client of its own (`PandaKinematics`), so that solving never disturbs the simulated
+scene, and repeated from its own result until it converges. A solution is accepted, as the UR5's, only when its
+forward kinematics lands within `sim.robot.IK_POSITION_TOLERANCE` / `IK_ANGLE_TOLERANCE` of the target with every
+joint inside the planning limits (the description's soft limits, Franka's published joint limits). The Panda is
+redundant (7 joints): the IK is seeded from the configuration it should stay near, then from home and from home
+with the base turned either way, which gives the planner other branches to try.
+"""
+
+from __future__ import annotations
+
+import atexit
+import xml.etree.ElementTree as ET
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pybullet
+import pybullet_data
+import trimesh
+
+from seggrasp.hands import FRANKA_HAND
+from sim.gripper import GripperSettings
+from sim.gripper_urdf import CARRIAGE_MASS, inertial_element, write_urdf
+from sim.panda_hand import FINGER_JOINTS, FINGER_LINKS, HAND_LINK, FrankaHandDrive
+from sim.robot import IK_ANGLE_TOLERANCE, IK_POSITION_TOLERANCE, ArmSettings, SerialArm, _joint_line, pose_error
+from sim.world import COLLISION_SKIN, World
+
+PANDA_DIR = Path(pybullet_data.getDataPath()) / "franka_panda"
+ARM_JOINTS = tuple(f"panda_joint{i}" for i in range(1, 8))
+#: Ready pose: elbow up, the hand pointing straight down above the workspace (Franka's "ready" configuration).
+HOME_Q = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+#: Weights of the joints when choosing the IK solution nearest a configuration (big joints move more mass).
+JOINT_WEIGHTS = np.array([2.0, 2.0, 1.5, 1.5, 1.0, 1.0, 0.5])
+#: IK: PyBullet's solver is called again from its own result until the pose error is below this (m) or
+#: `IK_ROUNDS` calls have run.
+IK_CONVERGED = 1e-4
+IK_ROUNDS = 8
+#: The base joint's turns (rad) added to home as further IK seeds.
+IK_SEED_TURNS = (0.8, -0.8)
+
+
+def _mesh_path(filename: str) -> str:
+    return str(PANDA_DIR / filename.replace("package://", ""))
+
+
+def pad_centre_height() -> float:
+    """The pads' centre above the hand link (m): the finger joint's origin plus the middle of the finger's flat
+    inner face (the collision mesh's vertices within 0.5 mm of its inner plane)."""
+    robot = ET.parse(PANDA_DIR / "panda.urdf").getroot()
+    joint = next(j for j in robot.iter("joint") if j.get("name") == FINGER_JOINTS[0])
+    link = next(l for l in robot.iter("link") if l.get("name") == FINGER_LINKS[0])
+    mesh = trimesh.load(_mesh_path(link.find("collision/geometry/mesh").get("filename")), force="mesh")
+    inner = mesh.vertices[:, 1] <= mesh.vertices[:, 1].min() + 0.0005
+    z = mesh.vertices[inner, 2]
+    return float(joint.find("origin").get("xyz").split()[2]) + 0.5 * float(z.min() + z.max())
+
+
+@lru_cache(maxsize=1)
+def panda_urdf() -> Path:
+    """pybullet_data's Panda as the twin simulates it (module docstring), written once per process."""
+    robot = ET.parse(PANDA_DIR / "panda.urdf").getroot()
+    for mesh in robot.iter("mesh"):
+        mesh.set("filename", _mesh_path(mesh.get("filename")))
+    for link in robot.iter("link"):
+        if link.get("name") in FINGER_LINKS:
+            link.remove(link.find("inertial"))
+            link.append(inertial_element(CARRIAGE_MASS, 1e-4))
+            contact = link.find("contact")
+            if contact is not None:  # friction and stiffness are set by the drive (sim.panda_hand)
+                link.remove(contact)
+            # PyBullet keeps contacts on the finger's convex hull `COLLISION_SKIN` outside it: set the hull back
+            # by that much, so that the fingers touch where the mesh's inner face is (the pad gap is the joints')
+            collision = link.find("collision")
+            origin = collision.find("origin")
+            if origin is None:
+                origin = ET.SubElement(collision, "origin", rpy="0 0 0")
+            outwards = 1.0 if link.get("name") == FINGER_LINKS[0] else -1.0  # the left finger opens along +y
+            origin.set("xyz", f"0 {outwards * COLLISION_SKIN:g} 0")
+    for joint in robot.iter("joint"):
+        if joint.get("name") in FINGER_JOINTS:
+            mimic = joint.find("mimic")
+            if mimic is not None:
+                joint.remove(mimic)
+            joint.find("limit").set("effort", f"{FRANKA_HAND.grip_force_range[1]:g}")
+    return write_urdf(robot, "panda_franka_hand.urdf")
+
+
+class PandaKinematics:
+    """Forward and inverse kinematics of the Panda on a kinematic copy in its own PyBullet client (module
+    docstring)."""
+
+    def __init__(self) -> None:
+        self.client = pybullet.connect(pybullet.DIRECT)
+        atexit.register(self.close)
+        self.body = pybullet.loadURDF(str(panda_urdf()), useFixedBase=True, physicsClientId=self.client)
+        infos = [pybullet.getJointInfo(self.body, j, physicsClientId=self.client)
+                 for j in range(pybullet.getNumJoints(self.body, physicsClientId=self.client))]
+        names = {info[1].decode(): info[0] for info in infos}
+        self.arm_joints = [names[n] for n in ARM_JOINTS]
+        self.hand_link = next(info[0] for info in infos if info[12].decode() == HAND_LINK)
+        self.movable = [info[0] for info in infos if info[2] != pybullet.JOINT_FIXED]
+        robot = ET.parse(PANDA_DIR / "panda.urdf").getroot()
+        soft = {j.get("name"): j.find("safety_controller") for j in robot.iter("joint")}
+        self.lower = np.array([float(soft[n].get("soft_lower_limit")) for n in ARM_JOINTS])
+        self.upper = np.array([float(soft[n].get("soft_upper_limit")) for n in ARM_JOINTS])
+        self.max_speed = np.array([infos[j][11] for j in self.arm_joints])
+        self.max_force = np.array([infos[j][10] for j in self.arm_joints])
+        # PyBullet's null-space IK takes limits for every movable joint (the fingers: their travel)
+        finger = [(infos[j][8], infos[j][9]) for j in self.movable if j not in self.arm_joints]
+        self._lower_all = [*self.lower, *(f[0] for f in finger)]
+        self._upper_all = [*self.upper, *(f[1] for f in finger)]
+        self._ranges = [u - l for l, u in zip(self._lower_all, self._upper_all)]
+
+    def close(self) -> None:
+        if self.client >= 0 and pybullet.isConnected(self.client):
+            pybullet.disconnect(self.client)
+        self.client = -1
+
+    def _set(self, q: np.ndarray) -> None:
+        for joint, value in zip(self.arm_joints, q):
+            pybullet.resetJointState(self.body, joint, float(value), physicsClientId=self.client)
+
+    def fk(self, q: np.ndarray) -> np.ndarray:
+        """World (the base) -> hand link for arm joints `q`."""
+        self._set(q)
+        state = pybullet.getLinkState(self.body, self.hand_link, computeForwardKinematics=True,
+                                      physicsClientId=self.client)
+        T = np.eye(4)
+        T[:3, :3] = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
+        T[:3, 3] = state[4]
+        return T
+
+    def solve(self, T_world_hand: np.ndarray, seed: np.ndarray) -> np.ndarray:
+        """PyBullet's IK from `seed`, repeated from its own result (`IK_ROUNDS`), clipped to the limits."""
+        position = T_world_hand[:3, 3].tolist()
+        w, x, y, z = _quaternion(T_world_hand[:3, :3])
+        q = np.asarray(seed, dtype=float)
+        rest = [*seed, *([0.0] * (len(self.movable) - len(self.arm_joints)))]
+        for _ in range(IK_ROUNDS):
+            self._set(q)
+            solution = pybullet.calculateInverseKinematics(
+                self.body, self.hand_link, position, [x, y, z, w], lowerLimits=self._lower_all,
+                upperLimits=self._upper_all, jointRanges=self._ranges, restPoses=rest, maxNumIterations=100,
+                residualThreshold=1e-6, physicsClientId=self.client,
+            )
+            q = np.clip(np.asarray(solution[: len(self.arm_joints)]), self.lower, self.upper)
+            if pose_error(self.fk(q), T_world_hand)[0] < IK_CONVERGED:
+                break
+        return q
+
+
+def _quaternion(R: np.ndarray) -> tuple[float, float, float, float]:
+    from scipy.spatial.transform import Rotation
+
+    x, y, z, w = Rotation.from_matrix(R).as_quat()
+    return w, x, y, z
+
+
+@lru_cache(maxsize=1)
+def kinematics() -> PandaKinematics:
+    """One kinematic copy per process (every Panda cell shares it; its state is set before every use)."""
+    return PandaKinematics()
+
+
+class PandaArm(SerialArm):
+    """The Franka Panda + Franka Hand as one fixed-base body at the world origin, with the UR5's motion interface
+    (`sim.robot.SerialArm`)."""
+
+    def __init__(self, world: World, settings: ArmSettings | None = None, gripper: GripperSettings | None = None):
+        self.world = world
+        self.kinematics = kinematics()
+        limit = float(self.kinematics.max_speed.min())
+        settings = settings or ArmSettings(max_joint_speed=limit)
+        self.settings = ArmSettings(max_joint_speed=min(settings.max_joint_speed, limit))
+        c = world.client
+        self.body = world.load_robot(panda_urdf())
+        joints = {c.getJointInfo(self.body, j)[1].decode(): j for j in range(c.getNumJoints(self.body))}
+        self.arm_joints = [joints[n] for n in ARM_JOINTS]
+        self.home_q = HOME_Q
+        self.joint_forces = self.kinematics.max_force
+        gripper = (gripper or GripperSettings(hand=FRANKA_HAND)).for_hand(FRANKA_HAND)
+        self.gripper = FrankaHandDrive(world, self.body, pad_centre_height(), gripper)
+        self.gripper_base_link = self.gripper.base_link
+        self.q_commanded = HOME_Q.copy()
+
+    @property
+    def joint_lower(self) -> np.ndarray:
+        return self.kinematics.lower
+
+    @property
+    def joint_upper(self) -> np.ndarray:
+        return self.kinematics.upper
+
+    # --- kinematics -----------------------------------------------------------------------------------------
+
+    def fk(self, q: np.ndarray) -> np.ndarray:
+        """World -> hand link (the gripper base) for arm joints `q`."""
+        return self.kinematics.fk(np.asarray(q, dtype=float))
+
+    def _accepted(self, q: np.ndarray, T_world_target: np.ndarray) -> bool:
+        if np.any(q < self.joint_lower - 1e-9) or np.any(q > self.joint_upper + 1e-9):
+            return False
+        position_error, angle_error = pose_error(self.fk(q), T_world_target)
+        return position_error <= IK_POSITION_TOLERANCE and angle_error <= IK_ANGLE_TOLERANCE
+
+    def ik_solutions(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> list[np.ndarray]:
+        """The IK solutions from each seed (`near`, default home; home; home with the base turned) that pass the
+        reachability check, distinct, nearest to `near` first."""
+        near = HOME_Q if near is None else np.asarray(near, dtype=float)
+        seeds = [near, HOME_Q]
+        for turn in IK_SEED_TURNS:
+            seed = HOME_Q.copy()
+            seed[0] += turn
+            seeds.append(seed)
+        solutions: list[np.ndarray] = []
+        for seed in seeds:
+            q = self.kinematics.solve(T_world_target, seed)
+            if self._accepted(q, T_world_target) and all(np.abs(q - s).max() > 1e-3 for s in solutions):
+                solutions.append(q)
+        return sorted(solutions, key=lambda q: float(np.abs((q - near) * JOINT_WEIGHTS).sum()))
+
+    def ik(self, T_world_target: np.ndarray, near: np.ndarray | None = None) -> tuple[np.ndarray | None, str]:
+        """The solution from `near` (default home) if it passes the check, else the nearest of `ik_solutions`, or
+        (None, reason)."""
+        near = HOME_Q if near is None else np.asarray(near, dtype=float)
+        q = self.kinematics.solve(T_world_target, near)
+        if self._accepted(q, T_world_target):
+            return q, ""
+        solutions = self.ik_solutions(T_world_target, near)
+        if solutions:
+            return solutions[0], ""
+        return None, "no IK solution of the Panda within its joint limits reaches the pose"
+
+    def free_space_paths(self, q_start: np.ndarray, q_target: np.ndarray) -> list[list[np.ndarray]]:
+        """Candidate joint-space paths from `q_start` to `q_target` (waypoints <= 0.05 rad apart): straight, or
+        through a raised via point (target joints, home shoulder and elbow)."""
+        via = q_target.copy()
+        via[[1, 3]] = HOME_Q[[1, 3]]
+        return [_joint_line(q_start, [q_target]), _joint_line(q_start, [via, q_target])]
+
+    def table_check_links(self) -> tuple[int, list[int]]:
+        """Links that must stay clear of the table: everything from the upper arm on (the base and the shoulder
+        sit on it)."""
+        return self.body, [j for j in range(self.world.client.getNumJoints(self.body)) if j >= self.arm_joints[1]]
