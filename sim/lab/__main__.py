@@ -63,32 +63,17 @@ class Models:
     gripper_options: dict = field(default_factory=dict)  # start_gripper_server's options (step_period, lock)
 
 
-def _robotiq() -> Any:
-    """sim.lab.robotiq (the URCap socket server) if it is there, else None."""
-    try:
-        from sim.lab import robotiq
-    except ModuleNotFoundError as exc:
-        if exc.name != "sim.lab.robotiq":
-            raise
-        return None
-    return robotiq
-
-
 def build_models(args: argparse.Namespace) -> Models:
     """The arm and finger models `serve` drives: kinematic ones, or the twin's (sim/lab/twin.py)."""
     if args.kinematic:
         from sim.lab.kinematic import KinematicArm
+        from sim.lab.robotiq import KinematicFingers
 
-        robotiq = _robotiq()
-        return Models(KinematicArm(), robotiq.KinematicFingers() if robotiq else None)
+        return Models(KinematicArm(), KinematicFingers())
     if not args.object:
         raise SystemExit("sim.lab serve: name the object to place (--object mug_classic) or pass --kinematic")
-    try:
-        from sim.lab.twin import twin_models
-    except ModuleNotFoundError as exc:
-        if exc.name != "sim.lab.twin":
-            raise
-        raise SystemExit("sim.lab serve: the twin-driven cell needs sim/lab/twin.py; pass --kinematic") from None
+    from sim.lab.twin import twin_models
+
     return twin_models(object_id=args.object, seed=args.seed, recordings=args.recordings)
 
 
@@ -101,6 +86,7 @@ def open_lab(args: argparse.Namespace) -> Callable[[], None]:
     from sim.lab.control import ControlServer, install_controller_commands
     from sim.lab.controller import Controller
     from sim.lab.dashboard import DashboardServer
+    from sim.lab.robotiq import start_gripper_server
     from sim.lab.settings import DEFAULT_POLYSCOPE, ControllerSettings, parse_polyscope
 
     args.host = args.host or ("0.0.0.0" if netns.in_private_namespace() else "127.0.0.1")
@@ -126,10 +112,9 @@ def open_lab(args: argparse.Namespace) -> Callable[[], None]:
         closers.append(dashboard.close)
         servers = {dashboard.port: dashboard, controller.script_port.port: controller.script_port,
                    controller.rtde.port: controller.rtde}
-        robotiq = _robotiq()
         gripper = None
-        if robotiq is not None and models.fingers is not None:
-            gripper = robotiq.start_gripper_server(models.fingers, host=args.host, **models.gripper_options)
+        if models.fingers is not None:
+            gripper = start_gripper_server(models.fingers, host=args.host, **models.gripper_options)
             closers.append(gripper.close)
             servers[gripper.port] = gripper
         install_controller_commands(controller, dashboard, servers, gripper)
