@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import zlib
 from dataclasses import dataclass, field, replace
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.select import TOP_K
 from seggrasp.truth import DetectorSpec
+from sim.evaluate.emulated import twin_objects
 
 DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "oracle", "shapegrasp")
 SIMULATED_PRESETS = ("perfect", "typical", "hard")
@@ -15,9 +17,15 @@ REAL_DETECTORS = ("grounding-dino", "owlv2")
 QUICK_METHODS = ("oracle", "seggrasp", "coarse")
 QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
 QUICK_TOP_K = 3
+#: The most grasps a run executes per prompt: ten times the paper's top-10. Deeper slots are mostly empty (a part
+#: rarely has that many distinct grasps) and every slot is a record: --top-k 100000 wrote 57 MB of them in 150 s.
+MAX_TOP_K = 100
+#: The most run seeds one run takes (each seed is a full pass over the objects: 1000 seeds of the full twin are
+#: weeks on a 2-core machine).
+MAX_SEEDS = 1000
 #: Settings a resumed run must share with the run it continues (methods, objects and seeds are merged instead).
 RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts",
-               "grip_force", "twin_gripper")
+               "grip_force", "twin_gripper", "dry_run")
 #: The twin's gripper model (`sim.gripper`): "slides", the fingertips on force-limited slides traced from the
 #: 2F-85's linkage; runs before it simulated "linkage", the linkage's revolute joints. A run resumes only on the
 #: model it started with.
@@ -56,6 +64,11 @@ class RunConfig:
         return self.detector in REAL_DETECTORS
 
     @property
+    def detector_label(self) -> str:
+        """How the run's records name its detector (e.g. `simulated:typical`)."""
+        return replace(self, seeds=[0]).detector_spec().label
+
+    @property
     def seed(self) -> int:
         """The seed of a one-seed config (see `at_seed`)."""
         if len(self.seeds) != 1:
@@ -79,6 +92,21 @@ class RunConfig:
         prompt boxed as the whole object in the same view), so a whole run would be one correlated sample.
         """
         return replace(self.detector_spec(), seed=scene_seed_of(object_id, self.seed))
+
+
+def prompts_of(config: RunConfig, object_id: str) -> list[str]:
+    """The prompts a run asks of an object: the run's `--prompts`, else the twin object's own."""
+    if config.prompts or not twin_objects(config):
+        return list(config.prompts)
+    return list(_twin_prompts(object_id))
+
+
+@functools.lru_cache(maxsize=None)
+def _twin_prompts(object_id: str) -> tuple[str, ...]:
+    """The twin object's own prompts (loaded once per process, not once per seed)."""
+    from seggrasp.objects import load_asset
+
+    return tuple(load_asset(object_id).prompts)
 
 
 def scene_seed_of(object_id: str, seed: int) -> int:

@@ -17,9 +17,9 @@ import numpy as np
 from seggrasp.io import atomic_write_json, atomic_write_text
 from seggrasp.method import RECIPES
 from seggrasp.metrics import mean_over_categories, quaternion_variance
-from sim.evaluate.config import RunConfig
+from sim.evaluate.config import RunConfig, prompts_of
 from sim.evaluate.plots import write_plots
-from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key
+from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key, writing
 from sim.evaluate.stats import CONFIDENCE, GRASP_METRICS, N_RESAMPLES, method_intervals, paired_differences
 
 ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "anchored", "seggrasp")
@@ -270,13 +270,8 @@ def markdown_report(summary: dict, header: dict) -> str:
 
 def expected_trials(config: RunConfig) -> int:
     """How many trial records a complete run holds."""
-    from seggrasp.objects import load_asset
-
-    total = 0
-    for object_id in config.objects:
-        n_prompts = len(config.prompts) if config.prompts else len(load_asset(object_id).prompts)
-        total += n_prompts * len(config.methods) * config.top_k * len(config.seeds)
-    return total
+    n_prompts = sum(len(prompts_of(config, object_id)) for object_id in config.objects)
+    return n_prompts * len(config.methods) * config.top_k * len(config.seeds)
 
 
 def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[dict]) -> dict:
@@ -300,7 +295,10 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
     summary["run"] = dict(header, methods=config.methods, objects=config.objects,
                           crashed_objects=sorted({c["object_id"] for c in crashes}),
                           crashed_tasks=[{"object_id": c["object_id"], "seed": c["seed"]} for c in crashes])
-    atomic_write_json(out / "summary.json", summary)
-    atomic_write_text(out / "summary.md", markdown_report(summary, header))
-    write_plots(summary, out / "plots")
+    with writing(out / "summary.json"):
+        atomic_write_json(out / "summary.json", summary)
+    with writing(out / "summary.md"):
+        atomic_write_text(out / "summary.md", markdown_report(summary, header))
+    with writing(out / "plots"):
+        write_plots(summary, out / "plots")
     return summary
