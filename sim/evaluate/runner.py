@@ -3,12 +3,12 @@
 
 from __future__ import annotations
 
-import functools
 import logging
 import multiprocessing
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -21,13 +21,36 @@ from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
 from seggrasp.objects import ObjectModel
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
-from sim.evaluate.config import RunConfig, scene_seed_of
-from sim.evaluate.records import JsonLines, VoteCache, curve_key, read_unique, seed_of, segmentation_key, trial_key
+from sim.evaluate.config import RunConfig, prompts_of, scene_seed_of
+from sim.evaluate.emulated import real_cell, twin_objects
+from sim.evaluate.records import (
+    RESULT_FILES,
+    STORAGE_ERRORS,
+    JsonLines,
+    VoteCache,
+    curve_key,
+    error_message,
+    read_unique,
+    seed_of,
+    segmentation_key,
+    trial_key,
+)
+from sim.evaluate.strips import caption_strip, film, strip_path
 
 if TYPE_CHECKING:
     from sim.evaluate.twin import TwinObject
 
 LOG = logging.getLogger("sim.evaluate")
+#: Runs of a task whose worker process died (the local engine's pool broke) before it is reported as a crash.
+MAX_ATTEMPTS = 3
+
+
+class RunStopped(Exception):
+    """The run was stopped from outside (a signal): the records written so far are kept."""
+
+    def __init__(self, message: str, exit_code: int) -> None:
+        super().__init__(message)
+        self.exit_code = exit_code
 
 
 @dataclass
@@ -94,9 +117,7 @@ def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
     global _CELL
     if config.backend == "real":
         if _CELL is None:
-            from hardware import RealCell  # lazy: the real cell's drivers are optional on a sim-only machine
-
-            _CELL = RealCell.from_config(config.config, dry_run=config.dry_run)
+            _CELL = real_cell(config)  # hardware.RealCell, or the emulated cell wrapping it
         return _CELL
     if _CELL is None or model.object_id not in _CELL_OBJECTS:
         from sim.cell import SimCell
@@ -132,6 +153,9 @@ def evaluate_object(task: ObjectTask) -> dict:
         n_new = run_object(cell, context, truth, config, Path(task.out), parallel=task.parallel,
                            recorded=task.recorded, sink=sink, decomposition_cache=decomposition_cache)
         status = dict(head, ok=True, new_trials=n_new, seconds=time.time() - started)
+    except OSError as exc:
+        status = dict(head, ok=False, error=error_message(exc), traceback=traceback.format_exc(),
+                      seconds=time.time() - started, fatal=exc.errno in STORAGE_ERRORS)
     except Exception as exc:  # a crash of one object must not lose the others' results
         status = dict(head, ok=False, error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc(),
                       seconds=time.time() - started)
@@ -143,7 +167,7 @@ def evaluate_object(task: ObjectTask) -> dict:
 def _object_of(task: ObjectTask, config: RunConfig) -> tuple[ObjectModel | None, Path | None]:
     """The task's twin object and the decomposition cache folder its data came with (None: the user's cache and the
     bundled one): unpacked from the shipped data, or read from the installed twin; (None, None) on the real cell."""
-    if config.backend == "real":
+    if not twin_objects(config):
         return None, None
     if task.twin is not None:
         from sim.evaluate.twin import unpack
@@ -159,13 +183,14 @@ def subject_of(object_id: str, config: RunConfig, cell: Cell,
     """What the harness knows about an object: its context and, for a twin object (`model`, default: read from
     the installed twin), its ground truth."""
     scene_seed = scene_seed_of(object_id, config.seed)
-    if config.backend == "real":
+    if not twin_objects(config):
         return EpisodeContext(object_id, "real", list(config.prompts), scene_seed), None
     from seggrasp.objects import load_asset
 
     model = model or load_asset(object_id)
     context = EpisodeContext.from_object(model, scene_seed, prompts=config.prompts or None)
-    return context, GroundTruth.of_object(model, context.prompts, true_pose=lambda: cell.object_mesh()[1])
+    true_pose = cell.true_pose if config.backend == "real" else lambda: cell.object_mesh()[1]  # emulated: placed
+    return context, GroundTruth.of_object(model, context.prompts, true_pose=true_pose)
 
 
 def run_object(
@@ -206,16 +231,23 @@ def run_object(
         if episode.truth_on_mesh is not None and method not in recorded.segmented:
             seg = segmentation_record(context, plan.method, plan.detector, plan.labels, episode)
             sink.add("segmentations.jsonl", dict(seg, seed=config.seed))
-        strips = 0
+        filmed = 0
         for slot in episode.slots(plan):
             prompt = context.prompts[slot.prompt_index]
             if (context.object_id, config.seed, method, prompt, slot.rank) in done:
                 continue
-            if strips < config.record and _runs_the_cell(episode, slot):
-                cell.record_next(strip_path(out, method, context.object_id, prompt, slot.rank, config.seed))
-                strips += 1
+            strip = None
+            if filmed < config.record and slot.grasp is not None:
+                strip = strip_path(out, method, context.object_id, prompt, slot.rank, config.seed)
+                filmed += 1
+                if _runs_the_cell(episode, slot):
+                    cell.record_next(strip)
             record = episode.execute(slot)
             record_extra(record, config)
+            if strip is not None:
+                if record.reused_outcome:  # the cell did not move for it: film the same grasp in the same scene
+                    film(cell, context, slot, strip)
+                caption_strip(strip, record)
             sink.add("trials.jsonl", record.to_json())
             n_new += 1
     if not recorded.curve and episode.truth_on_mesh is not None and any(m != "oracle" for m in config.methods):
@@ -231,20 +263,13 @@ def _runs_the_cell(episode: Episode, slot: Slot) -> bool:
     return episode.outcome_cache is None or key not in episode.outcome_cache
 
 
-def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int, seed: int = 0) -> Path:
-    """Where `--record` writes the picture strip of one slot: OUT/strips/<method>-<object>-<prompt>-<rank>.png
-    (seed 0), ...-<rank>-seed<seed>.png for another seed."""
-    safe_prompt = "".join(c if c.isalnum() or c in "_." else "_" for c in prompt)
-    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}{f'-seed{seed}' if seed else ''}.png"
-
-
 def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
     """A deterministic simulator gives the same outcome for the same grasp in the same scene: reuse recorded ones."""
     if config.backend != "sim":
         return None
     outcomes = {}
     for record in existing:
-        if record["executed"] and not record["reused_outcome"]:
+        if record["executed"] and not record.get("reused_outcome"):
             outcomes[grasp_key(np.array(record["T_world_grasp"]), record["width"])] = outcome_from(record)
     return outcomes
 
@@ -313,24 +338,16 @@ def worker_init(uses_torch: bool = False) -> None:
         pass
 
 
-@functools.lru_cache(maxsize=None)
-def _twin_prompts(object_id: str) -> tuple[str, ...]:
-    """The twin object's own prompts (loaded once per process, not once per seed)."""
-    from seggrasp.objects import load_asset
-
-    return tuple(load_asset(object_id).prompts)
-
-
 def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
     """Whether `out` already holds every trial of the object's (one seed) run and, on the twin, every method's
     segmentation and the threshold curve: then its task has nothing to add."""
     if not recorded.trials:  # a fresh (object, seed): nothing to compare, no asset to load
         return False
-    prompts = list(config.prompts) if config.prompts or config.backend == "real" else _twin_prompts(object_id)
+    prompts = prompts_of(config, object_id)
     have = {(r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
     if any((m, p, k) not in have for m in config.methods for p in prompts for k in range(config.top_k)):
         return False
-    if config.backend == "real":
+    if not twin_objects(config):
         return True
     return set(config.methods) <= recorded.segmented and (recorded.curve or set(config.methods) <= {"oracle"})
 
@@ -352,24 +369,68 @@ def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = Fal
 
 def evaluate_objects(config: RunConfig, out: Path, workers: int, on_status) -> list[dict]:
     """Evaluate every (object, seed) of the run that `out` does not hold completely, in `workers` local processes;
-    `on_status` sees each pair's status and returns it as a crash (a one-item list) or not. Returns the crashes."""
+    `on_status` sees each pair's status and returns it as a crash (a one-item list) or not. Returns the crashes.
+    A worker process that dies (killed, out of memory) breaks the pool: the tasks it left unfinished run again from
+    what `out` holds (their finished trials are kept), each at most `MAX_ATTEMPTS` times, then count as crashed."""
     tasks, complete = make_tasks(config, out, parallel=workers > 1)
     for status in complete:
         on_status(status)
     crashes = []
     if workers == 1:
         worker_init(config.uses_torch)
-        for status in map(evaluate_object, tasks):
-            crashes += on_status(status)
-        close_cell()
+        try:
+            for status in map(evaluate_object, tasks):
+                crashes += on_status(status)
+        finally:
+            close_cell()
         return crashes
+    attempts: dict[tuple, int] = {}
+
+    def collect(status: dict) -> None:
+        crashes.extend(on_status(status))
+
+    while tasks:
+        unfinished = _run_pool(tasks, workers, config.uses_torch, collect)
+        if not unfinished:
+            break
+        for task in unfinished:
+            attempts[task.object_id, task.seed] = attempts.get((task.object_id, task.seed), 0) + 1
+        for name in RESULT_FILES:  # the dead worker may have been cut mid-line
+            JsonLines(out / name).repair()
+        given_up = [t for t in unfinished if attempts[t.object_id, t.seed] >= MAX_ATTEMPTS]
+        for task in given_up:
+            crashes += on_status({"object_id": task.object_id, "seed": task.seed, "ok": False, "seconds": 0.0,
+                                  "error": f"its worker process died {MAX_ATTEMPTS} times", "traceback": ""})
+        retry = {(t.object_id, t.seed) for t in unfinished} - {(t.object_id, t.seed) for t in given_up}
+        LOG.warning("a worker process died; %d unfinished task(s) run again from what %s holds", len(retry), out)
+        recorded = recorded_index(out)
+        tasks = [ObjectTask(o, s, config, str(out), recorded(o, s), parallel=True) for o, s in sorted(retry)]
+    return crashes
+
+
+def _run_pool(tasks: list[ObjectTask], workers: int, uses_torch: bool, on_status) -> list[ObjectTask]:
+    """Run `tasks` in a pool of `workers` processes, handing each status to `on_status`; returns the tasks left
+    unfinished because a worker process died."""
     # not multiprocessing.Pool: its daemonic workers may not start the CoACD processes of a decomposition
     context = multiprocessing.get_context("spawn")
-    with ProcessPoolExecutor(workers, mp_context=context, initializer=worker_init,
-                             initargs=(config.uses_torch,)) as pool:
-        for status in as_completed([pool.submit(evaluate_object, task) for task in tasks]):
-            crashes += on_status(status.result())
-    return crashes
+    unfinished = []
+    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context, initializer=worker_init,
+                             initargs=(uses_torch,)) as pool:
+        futures = {pool.submit(evaluate_object, task): task for task in tasks}
+        try:
+            for future in as_completed(futures):
+                try:
+                    status = future.result()
+                except BrokenProcessPool:
+                    unfinished.append(futures[future])
+                    continue
+                on_status(status)
+        except BaseException:  # stop now: the other tasks' finished trials are in `out` already
+            for process in list((getattr(pool, "_processes", None) or {}).values()):  # no public way before 3.14
+                process.terminate()
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+    return unfinished
 
 
 def record_extra(record: TrialRecord, config: RunConfig) -> None:
