@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 import os
 import signal
+import socket
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -23,8 +24,8 @@ from pathlib import Path
 
 from seggrasp.io import atomic_write_json
 from sim.evaluate.config import RunConfig
-from sim.evaluate.records import JsonLines
-from sim.evaluate.runner import ObjectTask, Recorded, evaluate_object, make_tasks, worker_init
+from sim.evaluate.records import JsonLines, error_message
+from sim.evaluate.runner import ObjectTask, Recorded, RunStopped, evaluate_object, make_tasks, worker_init
 from sim.evaluate.twin import TwinObject, pack
 
 LOG = logging.getLogger("sim.evaluate")
@@ -38,6 +39,13 @@ KILL_ONCE_ENV = "SEGGRASP_RAY_KILL_ONCE"
 #: goes): the driver entering the engine, Ray connected, objects packed, each task's start and end in its worker and
 #: its arrival at the driver, the last task done, Ray stopped.
 TRACE_ENV = "SEGGRASP_RAY_TRACE"
+#: How long the driver waits for each step of a Ray connection check (TCP connect, then the head's first reply), s.
+CONNECT_TIMEOUT = 10.0
+#: The driver waits for finished tasks in slices of this many seconds (so a signal is handled between them).
+WAIT_SLICE = 1.0
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
+HTTP2_EMPTY_SETTINGS = bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # length 0, type SETTINGS, no flags, stream 0
+HTTP2_SETTINGS = 4
 _stopping: list[threading.Thread] = []  # a local instance being shut down behind the driver's back
 
 
@@ -88,7 +96,11 @@ def _connect(workers: int, address: str | None) -> bool:
     if ray.is_initialized():
         return False
     options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
+    # Ray's native failure handler turns a SIGTERM during ray.init into a signal dump and an abort (exit 134);
+    # without it the signal reaches Python's handler (see _Stopper). A worker's crash is still reported by Ray.
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     if address:
+        _probe(address)
         try:
             ray.init(address=address, **options)
         except ConnectionError as exc:
@@ -102,23 +114,107 @@ def _connect(workers: int, address: str | None) -> bool:
     return True
 
 
+def _probe(address: str) -> None:
+    """Refuse, within `CONNECT_TIMEOUT` s, a cluster address where no Ray head answers: ray.init retries such an
+    address for many minutes in native code, deaf to SIGTERM. A head's GCS is a gRPC (HTTP/2) server: it answers
+    the HTTP/2 client preface with a SETTINGS frame."""
+    from ray._private.services import canonicalize_bootstrap_address
+
+    try:  # host:port as ray.init will dial it (a Ray client address ray://host:port: that host and port)
+        target = address.split("://", 1)[1] if "://" in address else canonicalize_bootstrap_address(address)
+    except (ConnectionError, ValueError) as exc:  # auto: no cluster recorded on this machine; a malformed address
+        raise ValueError(f"cannot join the Ray cluster at {address}: {str(exc).splitlines()[0]}") from exc
+    if target is None:  # auto without a recorded cluster: ray.init says so at once
+        return
+    host, _, port = target.rpartition(":")
+    dialled = target if target == address else f"{target} (as Ray dials {address})"
+    try:
+        connection = socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot join the Ray cluster at {address}: nothing answers at {dialled} "
+                         f"({error_message(exc) if isinstance(exc, OSError) else exc}); is the head running "
+                         "(`ray start --head`) and the address right?") from None
+    reply = b""
+    with connection:
+        deadline = time.monotonic() + CONNECT_TIMEOUT  # one deadline, whatever trickles in
+        try:
+            connection.sendall(HTTP2_PREFACE + HTTP2_EMPTY_SETTINGS)
+            while len(reply) < 9:
+                connection.settimeout(max(deadline - time.monotonic(), 0.01))
+                chunk = connection.recv(9 - len(reply))
+                if not chunk:
+                    break
+                reply += chunk
+        except OSError:  # a timeout, a reset: no reply
+            pass
+    if len(reply) < 9 or reply[3] != HTTP2_SETTINGS:
+        raise ValueError(f"cannot join the Ray cluster at {address}: {dialled} accepts connections but does not "
+                         f"answer as a Ray head (no gRPC reply within {CONNECT_TIMEOUT:g} s); check the address and "
+                         "port")
+
+
+class _Stopper:
+    """While active (on the main thread), SIGTERM and SIGINT are noted instead of reaching Ray's native handler
+    (a signal dump, exit 134) or raising inside Ray's native wait; `check` then raises `RunStopped`. The previous
+    handlers come back at exit."""
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+    def __enter__(self) -> "_Stopper":
+        self.received: int | None = None
+        self.previous = {}
+        self.install()
+        return self
+
+    def install(self) -> None:
+        """(Re)install the handlers (ray.init puts its own in place)."""
+        if threading.current_thread() is threading.main_thread():
+            self.previous = {number: signal.signal(number, self._note) for number in self.SIGNALS} | self.previous
+
+    def _note(self, signum: int, frame) -> None:
+        self.received = signum
+
+    def check(self) -> None:
+        """Raise `RunStopped` if a signal came."""
+        if self.received is not None:
+            raise RunStopped(f"stopped by {signal.Signals(self.received).name}", 128 + self.received)
+
+    def __exit__(self, *exc) -> None:
+        for number, previous in self.previous.items():
+            signal.signal(number, previous)
+
+
 def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | None, on_status) -> list[dict]:
     """Evaluate every (object, seed) of the run that `out` does not hold completely as Ray tasks, appending each
     finished task's records to `out` (driver side); `on_status` sees every status, as with the local engine
     (runner.evaluate_objects). Returns the crashes."""
-    import ray
-
     tasks, complete = make_tasks(config, out, parallel=True, collect=True)
     for status in complete:
         on_status(status)
     if not tasks:
         return []
     trace = Trace()
-    with ThreadPoolExecutor(1) as packer:  # ray.init must run on the main thread
-        packing = packer.submit(_pack_timed, tasks, config.decomposition_seed, trace)
-        started_here = _connect(workers, address)
-        trace.mark("connected")
-        twins = packing.result()
+    with _Stopper() as stopper:
+        with ThreadPoolExecutor(1) as packer:  # ray.init must run on the main thread
+            packing = packer.submit(_pack_timed, tasks, config.decomposition_seed, trace)
+            try:
+                started_here = _connect(workers, address)
+            except SystemExit as exc:  # ray.init's own SIGTERM handler, in place while it connects
+                if exc.code != signal.SIGTERM:
+                    raise
+                raise RunStopped("stopped by SIGTERM", 128 + signal.SIGTERM) from None
+            stopper.install()
+            trace.mark("connected")
+            twins = packing.result()
+        return _run_tasks(tasks, twins, config, started_here, trace, stopper, on_status)
+
+
+def _run_tasks(tasks: list[ObjectTask], twins: dict[str, TwinObject], config: RunConfig, started_here: bool,
+               trace: Trace, stopper: _Stopper, on_status) -> list[dict]:
+    """Submit the tasks to the connected Ray instance and receive them as they finish; returns the crashes."""
+    import ray
+
+    stopped = False
     try:
         remote = ray.remote(num_cpus=1, max_retries=MAX_RETRIES, retry_exceptions=False)(_run_task)
         config_ref = ray.put(config)
@@ -127,26 +223,39 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
                    for t in tasks}
         crashes = []
         while pending:
-            (ref,), _ = ray.wait(list(pending), num_returns=1)
-            task = pending.pop(ref)
-            try:
-                status = ray.get(ref)
-            except ray.exceptions.RayError as exc:  # the worker died more often than Ray retries
-                status = {"object_id": task.object_id, "seed": task.seed, "ok": False, "seconds": 0.0,
-                          "error": f"{type(exc).__name__}: the Ray task failed", "traceback": str(exc)}
-            if "worker" in status:  # (not when its worker died for good)
-                trace.tasks.append(dict(status.pop("worker"), received=time.time()))
-            for name, records in status.pop("records", {}).items():
-                JsonLines(Path(task.out) / name).extend(records)
-            crashes += on_status(status)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=WAIT_SLICE)
+            stopper.check()
+            if ready:
+                crashes += _receive(ready[0], pending.pop(ready[0]), trace, on_status)
         trace.mark("done")
         return crashes
+    except RunStopped:
+        stopped = True
+        raise
     finally:
-        if started_here:  # stopping the local instance waits on its processes: the driver goes on meanwhile
+        if started_here and not stopped:  # stopping the local instance waits on its processes: the driver goes on
             _stopping.append(threading.Thread(target=_stop, args=(trace,), name="ray-shutdown"))
             _stopping[-1].start()
+        elif started_here:  # stopped from outside: take the instance down before exiting
+            _stop(trace)
         else:
             trace.write()
+
+
+def _receive(ref, task: ObjectTask, trace: Trace, on_status) -> list[dict]:
+    """Write a finished Ray task's records (driver side) and report its status; returns it as a crash or not."""
+    import ray
+
+    try:
+        status = ray.get(ref)
+    except ray.exceptions.RayError as exc:  # the worker died more often than Ray retries
+        status = {"object_id": task.object_id, "seed": task.seed, "ok": False, "seconds": 0.0,
+                  "error": f"{type(exc).__name__}: the Ray task failed", "traceback": str(exc)}
+    if "worker" in status:  # (not when its worker died for good)
+        trace.tasks.append(dict(status.pop("worker"), received=time.time()))
+    for name, records in status.pop("records", {}).items():
+        JsonLines(Path(task.out) / name).extend(records)
+    return on_status(status)
 
 
 def _stop(trace: Trace) -> None:
