@@ -6,14 +6,18 @@ import argparse
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from seggrasp.grasp.select import TOP_K
 from seggrasp.method import METHODS
+from sim.evaluate import emulated
 from sim.evaluate.config import (
     DEFAULT_METHODS,
+    MAX_SEEDS,
+    MAX_TOP_K,
     QUICK_CATEGORIES,
     QUICK_METHODS,
     QUICK_TOP_K,
@@ -22,9 +26,9 @@ from sim.evaluate.config import (
     TWIN_GRIPPER,
     RunConfig,
 )
-from sim.evaluate.records import OutputLock, prepare_out
+from sim.evaluate.records import OutputLock, error_message, load_run, prepare_out
 from sim.evaluate.report import write_summary
-from sim.evaluate.runner import evaluate_objects
+from sim.evaluate.runner import RunStopped, evaluate_objects
 
 LOG = logging.getLogger("sim.evaluate")
 DESCRIPTION = ("`python -m sim.evaluate`: the benchmark on the bundled twin (or a real cell) — segmentation, part "
@@ -32,77 +36,152 @@ DESCRIPTION = ("`python -m sim.evaluate`: the benchmark on the bundled twin (or 
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="python -m sim.evaluate", description=DESCRIPTION)
-    parser.add_argument("--methods", help=f"comma-separated, from {','.join(METHODS)} (default: {','.join(DEFAULT_METHODS)})")
+    """The command line; a run setting not given is None (build_config fills the default or the recorded value)."""
+    parser = argparse.ArgumentParser(prog="python -m sim.evaluate", description=DESCRIPTION,
+                                     epilog="With --resume, a setting not given is the recorded run's and one given "
+                                     "must match it; --methods, --objects and --seeds given are added to it.")
+    parser.add_argument("--methods", help=f"comma-separated, from {','.join(METHODS)} (default: "
+                        f"{','.join(DEFAULT_METHODS)}; --quick {','.join(QUICK_METHODS)})")
     parser.add_argument("--objects", help="comma-separated object ids (default: the whole twin)")
-    parser.add_argument("--categories", help="comma-separated categories of the twin")
-    parser.add_argument("--detector", default="typical",
-                        help=f"simulated preset ({'|'.join(SIMULATED_PRESETS)}) or {'|'.join(REAL_DETECTORS)} with --weights")
-    parser.add_argument("--weights", help="local weights directory (or hub id) for a real detector")
-    parser.add_argument("--embodiment", choices=("arm", "floating"), default="arm")
+    parser.add_argument("--categories", help="comma-separated categories of the twin (default: all)")
+    parser.add_argument("--detector", help=f"simulated preset ({'|'.join(SIMULATED_PRESETS)}) or "
+                        f"{'|'.join(REAL_DETECTORS)} with --weights (default: typical)")
+    parser.add_argument("--weights", help="local weights directory (or hub id) for a real detector (default: none)")
+    parser.add_argument("--embodiment", choices=("arm", "floating"),
+                        help="twin only: arm, the UR5 carries the 2F-85 (reach and collisions checked), or floating, "
+                        "the 2F-85 alone is placed at each grasp (default: arm; --quick: floating)")
     parser.add_argument("--workers", type=int, default=1,
-                        help="(object, seed) tasks run in parallel (local processes, or a local Ray instance's CPUs)")
-    parser.add_argument("--seed", type=int, default=None, help="the run seed (default 0); --seeds for several")
-    parser.add_argument("--seeds", help="several run seeds, e.g. 0-4 or 0,3,7: each redraws the detector's errors, "
-                        "the scene poses and the grasps; the report gives 95%% intervals over objects and seeds")
+                        help="(object, seed) tasks run in parallel (local processes, or a local Ray instance's CPUs; "
+                        "default: 1)")
+    parser.add_argument("--seed", type=int, default=None, help="the run seed (default: 0); --seeds for several")
+    parser.add_argument("--seeds", help=f"several run seeds, e.g. 0-4 or 0,3,7 (at most {MAX_SEEDS}): each redraws "
+                        "the detector's errors, the scene poses and the grasps; the report gives 95%% intervals over "
+                        "objects and seeds")
     parser.add_argument("--engine", choices=("local", "ray"), default="local",
-                        help="local processes (default) or Ray tasks (a local Ray instance, or --address)")
-    parser.add_argument("--address", help="--engine ray: join the Ray cluster at this address (e.g. auto, HEAD:6379)")
-    parser.add_argument("--top-k", type=int, default=None, help=f"grasps executed per prompt (default {TOP_K}; --quick {QUICK_TOP_K})")
-    parser.add_argument("--out", default=None, help="output folder (default results/evaluate-<detector>-<embodiment>)")
+                        help="local processes or Ray tasks (a local Ray instance, or --address; default: local)")
+    parser.add_argument("--address", help="--engine ray: join the Ray cluster at this address (e.g. auto, "
+                        "HEAD:6379; default: start a local instance)")
+    parser.add_argument("--top-k", type=int, default=None,
+                        help=f"grasps executed per prompt, 1-{MAX_TOP_K} (default: {TOP_K}; --quick {QUICK_TOP_K})")
+    parser.add_argument("--out", default=None,
+                        help="output folder (default: results/evaluate-<detector>-<embodiment>, -quick added for "
+                        "--quick)")
     parser.add_argument("--resume", action="store_true",
-                        help="continue the run recorded in --out (same settings; its methods and objects are kept)")
-    parser.add_argument("--quick", action="store_true",
+                        help="continue the run recorded in --out: its methods, objects, seeds and settings are kept")
+    parser.add_argument("--quick", action="store_true", default=None,
                         help=f"CI profile: the first object of the categories {','.join(QUICK_CATEGORIES)}, methods "
                         f"{','.join(QUICK_METHODS)}, top-{QUICK_TOP_K}, floating gripper unless --embodiment is given")
-    parser.add_argument("--backend", choices=("sim", "real"), default="sim")
-    parser.add_argument("--config", help="cell.yaml of the real cell (--backend real)")
-    parser.add_argument("--dry-run", action="store_true", help="real backend: plan and check, never move the robot")
-    parser.add_argument("--perceive", action="store_true", help="plan on a mesh fused from the cameras, not the twin's")
+    parser.add_argument("--backend", choices=("sim", "real"),
+                        help="sim, the PyBullet twin, or real, the robot cell of --config (default: sim)")
+    parser.add_argument("--config", help="cell.yaml of the real cell (--backend real; default: none)")
+    parser.add_argument("--dry-run", action="store_true", default=None,
+                        help="real backend: plan and check, never move the robot")
+    parser.add_argument("--perceive", action="store_true", default=None,
+                        help="plan on a mesh fused from the cameras, not the twin's (always on with --backend real)")
     parser.add_argument("--prompts", help="comma-separated part names (default: each object's own; required for real)")
     parser.add_argument("--record", type=int, default=0, metavar="N",
-                        help="twin only: save a picture strip (pre-grasp, closed, lifted, held) of the first N executed "
-                        "slots per method and object to OUT/strips/")
+                        help="twin only: save a picture strip (pre-grasp, closed, lifted, held; captioned with the "
+                        "trial's result) of the first N slots with a grasp per method and object to OUT/strips/, "
+                        "slots whose outcome is reused simulated again for the strip (default: 0)")
     parser.add_argument("--grip-force", type=float, default=None, metavar="N",
                         help=f"twin only: the gripper's force in N, {GRIP_FORCE_RANGE[0]:g}-{GRIP_FORCE_RANGE[1]:g} like the "
-                        f"2F-85 (default {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
+                        f"2F-85 (default: {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
                         "sampler's torsion limit follows it. A real cell grips with its cell.yaml's gripper.force")
-    parser.add_argument("-v", "--verbose", action="store_true")
-    args = parser.parse_args(argv)
-    args.embodiment_given = any(a == "--embodiment" or a.startswith("--embodiment=") for a in (argv or sys.argv[1:]))
-    return args
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="log every step, debug messages included (default: warnings and errors only)")
+    return parser.parse_args(argv)
+
+
+#: The run settings an option sets (RunConfig fields; the option is the field with dashes): a resumed run keeps the
+#: recorded value of each one not given and refuses one given that differs.
+SETTINGS = ("detector", "weights", "embodiment", "top_k", "backend", "config", "perceive", "dry_run", "prompts",
+            "grip_force", "quick")
+#: The value of each setting not given, on a fresh run (`embodiment` and `top_k`: see `_defaults`).
+DEFAULTS = {"detector": "typical", "weights": None, "backend": "sim", "config": None, "perceive": False,
+            "dry_run": False, "prompts": None, "grip_force": None, "quick": False}
 
 
 def _split(text: str | None) -> list[str]:
     return [t.strip() for t in text.split(",") if t.strip()] if text else []
 
 
+def _unique(values: list[str], option: str) -> list[str]:
+    """`values` of a comma-separated option, refused when one is given twice (a run would record it twice)."""
+    repeated = sorted({v for v in values if values.count(v) > 1})
+    if repeated:
+        raise ValueError(f"{option} lists {', '.join(repeated)} more than once; give each once")
+    return values
+
+
 def parse_seeds(text: str) -> list[int]:
-    """`0-4`, `0,3,7` or a mix (`0-2,9`) as a list of distinct non-negative seeds (ValueError naming the problem)."""
+    """`0-4`, `0,3,7` or a mix (`0-2,9`) as a list of distinct non-negative seeds, at most `MAX_SEEDS` of them
+    (ValueError naming the problem)."""
     seeds: list[int] = []
+    seen: set[int] = set()
     for item in (t.strip() for t in text.split(",")):
         low, dash, high = item.partition("-")
-        if not (low.isdigit() and (high.isdigit() if dash else True)):
-            raise ValueError(f"--seeds {text!r}: {item!r} is not a seed or a range like 0-4 (non-negative integers)")
+        if not (low.isdigit() and (high.isdigit() if dash else True)) or max(len(low), len(high)) > 18:
+            raise ValueError(f"--seeds {text[:60]!r}: {item[:30]!r} is not a seed or a range like 0-4 (integers "
+                             "0 to 10^18)")
         first, last = int(low), int(high) if dash else int(low)
         if last < first:
-            raise ValueError(f"--seeds {text!r}: the range {item} goes down; write {last}-{first}")
-        seeds += range(first, last + 1)
-    repeated = sorted({s for s in seeds if seeds.count(s) > 1})
-    if repeated:
-        raise ValueError(f"--seeds {text!r}: seed(s) {repeated} given twice")
+            raise ValueError(f"--seeds {text[:60]!r}: the range {item} goes down; write {last}-{first}")
+        if len(seeds) + last - first + 1 > MAX_SEEDS:
+            raise ValueError(f"--seeds {text[:60]!r} gives more than {MAX_SEEDS} seeds, the most one run takes; "
+                             "split it into several runs")
+        span = range(first, last + 1)
+        repeated = [s for s in span if s in seen]
+        if repeated:
+            raise ValueError(f"--seeds {text[:60]!r}: seed(s) {repeated[:10]} given twice")
+        seen.update(span)
+        seeds += span
     return seeds
 
 
-def _seeds(args: argparse.Namespace) -> list[int]:
+def _seeds(args: argparse.Namespace) -> list[int] | None:
+    """The seeds given (None: neither --seed nor --seeds)."""
     if args.seeds is not None and args.seed is not None:
         raise ValueError("give either --seed S or --seeds LIST, not both")
     if args.seeds is not None:
         return parse_seeds(args.seeds)
-    seed = 0 if args.seed is None else args.seed
-    if seed < 0:
-        raise ValueError(f"--seed must be a non-negative integer, got {seed}")
-    return [seed]
+    if args.seed is None:
+        return None
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+    return [args.seed]
+
+
+def _given(args: argparse.Namespace) -> dict:
+    """The run settings the command line gives (SETTINGS; `prompts` as a list)."""
+    given = {name: getattr(args, name) for name in SETTINGS if getattr(args, name) is not None}
+    if "prompts" in given:
+        given["prompts"] = _unique(_split(given["prompts"]), "--prompts")
+    return given
+
+
+def _defaults(args: argparse.Namespace) -> argparse.Namespace:
+    """The arguments with every run setting not given at its fresh-run default."""
+    filled = argparse.Namespace(**vars(args))
+    for name, value in DEFAULTS.items():
+        if getattr(filled, name) is None:
+            setattr(filled, name, value)
+    if filled.embodiment is None:
+        filled.embodiment = "floating" if filled.quick else "arm"
+    if filled.top_k is None:
+        filled.top_k = QUICK_TOP_K if filled.quick else TOP_K
+    return filled
+
+
+def _check_given(args: argparse.Namespace) -> None:
+    """Checks of what the command line gives, fresh run or resumed."""
+    if args.top_k is not None and not 1 <= args.top_k <= MAX_TOP_K:
+        raise ValueError(f"--top-k must be 1-{MAX_TOP_K} (grasps executed per prompt), got {args.top_k}")
+    if args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    if args.record < 0:
+        raise ValueError(f"--record must be at least 0, got {args.record}")
+    if args.address and args.engine != "ray":
+        raise ValueError("--address joins a Ray cluster: it needs --engine ray")
 
 
 def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
@@ -113,17 +192,16 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
         raise ValueError(f"unknown detector {args.detector!r}; use {list(SIMULATED_PRESETS + REAL_DETECTORS)}")
     if args.detector in REAL_DETECTORS and not args.weights:
         raise ValueError(f"--detector {args.detector} needs --weights (a local weights directory or hub id)")
-    if args.workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {args.workers}")
-    if args.record < 0:
-        raise ValueError(f"--record must be at least 0, got {args.record}")
+    _check_backend(args)
+    _check_twin_settings(args)
+
+
+def _check_backend(args: argparse.Namespace) -> None:
+    """What the real cell cannot do (fresh run or resumed: `args.backend` is the run's)."""
     if args.record and args.backend == "real":
         raise ValueError("--record needs the twin: the real cell cannot record picture strips (drop --record)")
-    if args.address and args.engine != "ray":
-        raise ValueError("--address joins a Ray cluster: it needs --engine ray")
     if args.engine == "ray" and args.backend == "real":
         raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
-    _check_twin_settings(args)
 
 
 def _check_twin_settings(args: argparse.Namespace) -> None:
@@ -139,6 +217,8 @@ def _check_twin_settings(args: argparse.Namespace) -> None:
 def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]) -> None:
     if not args.config:
         raise ValueError("--backend real needs --config cell.yaml")
+    if emulated.declared(args.config):  # the emulated cell's objects are twin objects: their truth is known
+        return
     if args.detector in SIMULATED_PRESETS:
         raise ValueError("--backend real needs a real detector (--detector grounding-dino|owlv2 --weights DIR)")
     if not prompts or not args.objects:
@@ -147,28 +227,60 @@ def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]
         raise ValueError("the oracle method needs ground-truth labels, which a real object does not have")
 
 
-def build_config(args: argparse.Namespace) -> RunConfig:
-    """Validate the arguments into a RunConfig (ValueError naming the problem)."""
-    methods = _split(args.methods) or list(QUICK_METHODS if args.quick else DEFAULT_METHODS)
+def build_config(args: argparse.Namespace, recorded: RunConfig | None = None) -> RunConfig:
+    """Validate the arguments into a RunConfig (ValueError naming the problem); with `recorded` (a resumed run's
+    run.json), the recorded settings where none is given, the given methods, objects and seeds added to its own."""
+    _check_given(args)
+    if recorded is not None:
+        return _resumed(args, recorded)
+    seeds = _seeds(args)
+    args = _defaults(args)
+    methods = _unique(_split(args.methods), "--methods") or list(QUICK_METHODS if args.quick else DEFAULT_METHODS)
     _check_choices(args, methods)
-    top_k = args.top_k if args.top_k is not None else (QUICK_TOP_K if args.quick else TOP_K)
-    if top_k < 1:
-        raise ValueError(f"--top-k must be at least 1, got {top_k}")
-    embodiment = "floating" if args.quick and not args.embodiment_given else args.embodiment
-    prompts = _split(args.prompts)
+    prompts = _unique(_split(args.prompts), "--prompts")
     if args.backend == "real":
         _check_real(args, methods, prompts)
-        objects = _split(args.objects)
+    if args.backend == "real" and not emulated.declared(args.config):
+        objects = _unique(_split(args.objects), "--objects")
     else:
-        objects = _select_objects(_split(args.objects), _split(args.categories), args.quick)
+        objects = _select_objects(_unique(_split(args.objects), "--objects"),
+                                  _unique(_split(args.categories), "--categories"), args.quick)
     return RunConfig(
-        methods=methods, objects=objects, detector=args.detector, weights=args.weights, embodiment=embodiment,
-        seeds=_seeds(args), top_k=top_k, backend=args.backend, config=args.config,
+        methods=methods, objects=objects, detector=args.detector, weights=args.weights, embodiment=args.embodiment,
+        seeds=seeds or [0], top_k=args.top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
         prompts=prompts, record=args.record,
         grip_force=DEFAULT_GRIP_FORCE if args.grip_force is None else args.grip_force,
         twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "",
     )
+
+
+def _resumed(args: argparse.Namespace, recorded: RunConfig) -> RunConfig:
+    """The recorded run continued: a setting given must equal the recorded one; methods, objects, seeds given are
+    added; `--record` is this invocation's."""
+    for name, value in _given(args).items():
+        if value != getattr(recorded, name) and not (name == "perceive" and recorded.backend == "real"):
+            option = "--" + name.replace("_", "-")
+            shown = "" if isinstance(value, bool) else f" {','.join(value) if isinstance(value, list) else value}"
+            raise ValueError(f"cannot resume: {option}{shown} contradicts the recorded run's {name} "
+                             f"{getattr(recorded, name)!r} (settings differ); drop {option} to keep the recorded "
+                             "one, or start another run in another --out")
+    methods = _unique(_split(args.methods), "--methods")
+    unknown = [m for m in methods + recorded.methods if m not in METHODS]
+    if unknown:
+        raise ValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
+    objects = _unique(_split(args.objects), "--objects")
+    categories = _unique(_split(args.categories), "--categories")
+    if recorded.backend == "sim" and (objects or categories):
+        objects = _select_objects(objects, categories, quick=False)
+    seeds = _seeds(args) or []
+    merged = {name: getattr(recorded, name) + [v for v in given if v not in getattr(recorded, name)]
+              for name, given in (("methods", methods), ("objects", objects), ("seeds", seeds))}
+    if len(merged["seeds"]) > MAX_SEEDS:
+        raise ValueError(f"--seeds would give the run {len(merged['seeds'])} seeds, more than {MAX_SEEDS}")
+    resumed = replace(recorded, **merged, record=args.record)
+    _check_backend(argparse.Namespace(record=args.record, engine=args.engine, backend=recorded.backend))
+    return resumed
 
 
 def _select_objects(object_ids: list[str], categories: list[str], quick: bool) -> list[str]:
@@ -197,6 +309,8 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False, en
 
     if resume and not out.is_dir():
         raise ValueError(f"cannot resume {out}: no such folder")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} is a file, not a folder; choose another --out")
     with OutputLock(out):
         config = prepare_out(out, config, resume)
         started = time.time()
@@ -212,6 +326,8 @@ def run(config: RunConfig, out: Path, workers: int = 1, resume: bool = False, en
 
 
 def _report(status: dict, bar) -> list[dict]:
+    if status.get("fatal"):  # the output cannot be written: the other tasks would fail the same way
+        raise ValueError(status["error"])
     bar.update(1)
     if status["ok"]:
         bar.set_postfix_str(f"{status['object_id']} seed {status['seed']}: {status['new_trials']} trials in "
@@ -222,18 +338,37 @@ def _report(status: dict, bar) -> list[dict]:
     return [status]
 
 
+def out_of(args: argparse.Namespace) -> Path:
+    """The output folder: --out, or the default named after the detector and embodiment given (or their defaults)."""
+    if args.out:
+        return Path(args.out)
+    filled = _defaults(args)
+    return Path(f"results/evaluate-{filled.detector}-{filled.embodiment}{'-quick' if filled.quick else ''}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        config = build_config(args)
-        out = Path(args.out or f"results/evaluate-{config.detector}-{config.embodiment}{'-quick' if config.quick else ''}")
+        _check_given(args)  # the arguments' own checks first: they need no file
+        _check_backend(_defaults(args))
+        if args.backend == "real" and args.config:  # an emulated cell's run executes inside the emulator
+            code = emulated.run_inside_emulator(args.config, _split(args.objects),
+                                                sys.argv[1:] if argv is None else argv)
+            if code is not None:
+                return code
+        out = out_of(args)
+        config = build_config(args, load_run(out) if args.resume else None)
         summary, crashes = run(config, out, workers=args.workers, resume=args.resume, engine=args.engine,
                                address=args.address)
-    except (ValueError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print((out / "summary.md").read_text())
+    except RunStopped as exc:
+        print(f"error: {exc}; the records written so far are kept (--resume --out {out} continues the run)",
+              file=sys.stderr)
+        return exc.exit_code
+    except (ValueError, OSError) as exc:
+        print(f"error: {error_message(exc)}", file=sys.stderr)
         return 2
-    print((out / "summary.md").read_text())
     run_info = summary["run"]
     print(f"{run_info['recorded_trials']}/{run_info['expected_trials']} trials recorded in {out} "
           f"({run_info['wall_time_s']:.0f} s)")
