@@ -102,6 +102,7 @@ def test_a_cluster_that_cannot_be_joined_is_a_clear_error(tmp_path, monkeypatch,
         raise ConnectionError("Failed to connect to Ray cluster at 10.0.0.9:6379")
 
     monkeypatch.setattr(ray, "init", refuse)
+    monkeypatch.setattr("sim.evaluate.ray_engine._probe", lambda address: None)  # a head answers; ray.init refuses
     code = main(["--objects", "mug_classic", "--methods", "coarse", "--engine", "ray",
                  "--address", "10.0.0.9:6379", "--out", str(tmp_path / "out")])
     assert code == 2
