@@ -13,6 +13,8 @@ from typing import Sequence
 from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from seggrasp.grasp.select import TOP_K
 from seggrasp.method import METHODS
+from seggrasp.truth import REAL_DETECTORS, SIMULATED_PRESETS, parse_detector
+from sim.cell import EMBODIMENTS
 from sim.evaluate import emulated
 from sim.evaluate.config import (
     DEFAULT_METHODS,
@@ -21,8 +23,6 @@ from sim.evaluate.config import (
     QUICK_CATEGORIES,
     QUICK_METHODS,
     QUICK_TOP_K,
-    REAL_DETECTORS,
-    SIMULATED_PRESETS,
     TWIN_GRIPPER,
     RunConfig,
 )
@@ -44,10 +44,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         f"{','.join(DEFAULT_METHODS)}; --quick {','.join(QUICK_METHODS)})")
     parser.add_argument("--objects", help="comma-separated object ids (default: the whole twin)")
     parser.add_argument("--categories", help="comma-separated categories of the twin (default: all)")
-    parser.add_argument("--detector", help=f"simulated preset ({'|'.join(SIMULATED_PRESETS)}) or "
-                        f"{'|'.join(REAL_DETECTORS)} with --weights (default: typical)")
+    parser.add_argument("--detector", help=f"simulated preset ({'|'.join(SIMULATED_PRESETS)}, also spelled "
+                        f"simulated:PRESET) or {'|'.join(REAL_DETECTORS)} with --weights (default: typical)")
     parser.add_argument("--weights", help="local weights directory (or hub id) for a real detector (default: none)")
-    parser.add_argument("--embodiment", choices=("arm", "floating"),
+    parser.add_argument("--embodiment", choices=EMBODIMENTS,
                         help="twin only: arm, the UR5 carries the 2F-85 (reach and collisions checked), or floating, "
                         "the 2F-85 alone is placed at each grasp (default: arm; --quick: floating)")
     parser.add_argument("--workers", type=int, default=1,
@@ -173,7 +173,11 @@ def _defaults(args: argparse.Namespace) -> argparse.Namespace:
 
 
 def _check_given(args: argparse.Namespace) -> None:
-    """Checks of what the command line gives, fresh run or resumed."""
+    """Checks of what the command line gives, fresh run or resumed; a detector given is put in the run's spelling
+    (a preset's bare name, `typical` for `simulated:typical`)."""
+    if args.detector is not None:
+        spec = parse_detector(args.detector, args.weights)
+        args.detector = spec.preset if spec.name == "simulated" else spec.name
     if args.top_k is not None and not 1 <= args.top_k <= MAX_TOP_K:
         raise ValueError(f"--top-k must be 1-{MAX_TOP_K} (grasps executed per prompt), got {args.top_k}")
     if args.workers < 1:
@@ -188,10 +192,7 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise ValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
-    if args.detector not in SIMULATED_PRESETS + REAL_DETECTORS:
-        raise ValueError(f"unknown detector {args.detector!r}; use {list(SIMULATED_PRESETS + REAL_DETECTORS)}")
-    if args.detector in REAL_DETECTORS and not args.weights:
-        raise ValueError(f"--detector {args.detector} needs --weights (a local weights directory or hub id)")
+    parse_detector(args.detector, args.weights)
     _check_backend(args)
     _check_twin_settings(args)
 

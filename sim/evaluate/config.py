@@ -8,12 +8,10 @@ from dataclasses import dataclass, field, replace
 
 from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.select import TOP_K
-from seggrasp.truth import DetectorSpec
+from seggrasp.truth import REAL_DETECTORS, DetectorSpec, parse_detector
 from sim.evaluate.emulated import twin_objects
 
 DEFAULT_METHODS = ("seggrasp", "coarse", "multi", "opt", "geofusion", "anchored", "oracle", "shapegrasp")
-SIMULATED_PRESETS = ("perfect", "typical", "hard")
-REAL_DETECTORS = ("grounding-dino", "owlv2")
 QUICK_METHODS = ("oracle", "seggrasp", "coarse")
 QUICK_CATEGORIES = ("mug", "knife", "hammer")  # --quick: the first twin object of each
 QUICK_TOP_K = 3
@@ -81,9 +79,7 @@ class RunConfig:
 
     def detector_spec(self) -> DetectorSpec:
         """The run's detector (seeded with the run seed)."""
-        if self.detector in SIMULATED_PRESETS:
-            return DetectorSpec("simulated", preset=self.detector, seed=self.seed)
-        return DetectorSpec(self.detector, weights=self.weights, seed=self.seed)
+        return parse_detector(self.detector, self.weights, self.seed)
 
     def object_detector(self, object_id: str) -> DetectorSpec:
         """The detector of one object: seeded with the object's scene seed.
