@@ -14,18 +14,20 @@ Two hands:
 - `ROBOTIQ_2F85`: the Robotiq 2F-85 of the UR5 cell. Datasheet: 85 mm stroke, grip force 20-235 N, finger speed
   20-150 mm/s; pads 22 x 37.5 mm. Its box model is a ray-probed profile of the simulated gripper's collision
   geometry (sim/gripper_urdf.py).
-- `FRANKA_HAND`: the Franka Hand of the Franka Panda. Franka's datasheet (as issue 36 quotes it): 80 mm stroke
-  (40 mm per finger), 70 N continuous and 140 N maximum grip force. The finger speed: libfranka's
-  `Gripper::move(width, speed)`/`grasp(width, speed, force)` take the closing speed in m/s and the Franka Hand
-  tops out at 0.1 m/s closing (frankx's `Gripper::max_speed = 0.1`, https://pantor.github.io/frankx/
-  classfrankx_1_1_gripper.html; its `max_width` 0.081 m plus a 4 mm jaw calibration), i.e. 50 mm/s per finger;
-  frankx's default is 0.04 m/s. Franka's own datasheet page was not among the stored references this was written
-  from: the 70/140 N and 80 mm are the issue's figures (70 N is also the force NVlabs' 6-DOF GraspNet used on its
-  Panda, NVlabs/6dof-graspnet#12). The grip force's lower bound (no datasheet figure found) is taken as 20 N, the
-  force libfranka's and frankx's examples grasp with (`Gripper(..., force=20.0)`). Pads: the fingertip's flat
-  inner face in pybullet_data's franka_panda/meshes/collision/finger.obj, 17.4 mm wide (x +-8.7 mm) and 17.6 mm
-  long (z 36.1-53.7 mm of the finger), the standard fingers' rubber-free aluminium tips; the box model is that
-  finger and the hand body (hand.obj: 208 mm across the closing direction, 63 mm deep) with the wrist behind it.
+- `FRANKA_HAND`: the Franka Hand of the Franka Panda. Grip force and stroke as issue 36 quotes Franka's datasheet:
+  70 N continuous and 140 N maximum grip force, 80 mm stroke (40 mm per finger; pybullet_data's panda.urdf gives
+  each finger joint 0-0.04 m). Finger speed: libfranka's `Gripper::move(width, speed)` and
+  `grasp(width, speed, force)` take the closing speed in m/s, and frankx, a wrapper of libfranka, caps it at
+  `Gripper::max_speed = 0.1` m/s (https://pantor.github.io/frankx/classfrankx_1_1_gripper.html, "max_speed {0.1}
+  // [m/s]", with `max_width {0.081 + width_calibration}`, a 4 mm jaw calibration), i.e. 50 mm/s per finger, which
+  the twin closes at. The lower ends of the force and speed ranges are not datasheet figures (none was found in
+  the references this was written from): 20 N, the force frankx's `Gripper` grasps with by default
+  (`Gripper(fci_ip, speed=0.04, force=20.0)`), and 5 mm/s per finger. Franka's own datasheet page was not among
+  those references; 70 N is also what NVlabs used on their Panda's hand for every object
+  (https://github.com/NVlabs/6dof-graspnet/issues/12). Pads: the fingertip's flat inner face in pybullet_data's
+  franka_panda/meshes/collision/finger.obj, 17.4 mm wide (x +-8.7 mm) and 17.6 mm long (z 36.1-53.7 mm of the
+  finger); the box model is that finger and the hand body (hand.obj: 208 mm across the closing direction, 63 mm
+  deep) with the wrist behind it.
 """
 
 from __future__ import annotations
@@ -153,9 +155,9 @@ FRANKA_HAND = Hand(
     pad_half_length=0.0088,
     # the finger links' frames lie on their inner faces (finger.obj: y = 0 from z 36 to 54 mm)
     pad_thickness=0.0,
-    tip_beyond_origin=0.0088,
+    tip_beyond_origin=0.0089,
     finger_boxes=(
-        (0.0, 0.0145, 0.0105, -0.009, 0.0088),  # the fingertip, 14.3 mm thick behind its pad
+        (0.0, 0.0145, 0.0105, -0.009, 0.0089),  # the fingertip, 14.3 mm thick behind its pad
         (0.0, 0.0265, 0.0105, -0.045, -0.009),  # the finger's base, 26.4 mm thick at the hand
     ),
     centre_boxes=(

@@ -136,10 +136,10 @@ def test_the_panda_lifts_a_twin_object():
         grasps = AntipodalSampler(gripper=FRANKA_HAND).generate(mesh, seed=0, table_plane=plane, mass=hammer.mass)
         grasps = grasps.transformed(T_world_obj)
         tried = []
-        for pose, width in zip(grasps.poses, grasps.widths):
+        for pose, width in zip(grasps.poses[:30], grasps.widths[:30]):
+            cell.reset(seed=3, object_id=hammer.object_id)  # the check and the grasp start from the scene
             if cell.check_reach(pose, width):
                 continue
-            cell.reset(seed=3, object_id=hammer.object_id)
             outcome = cell.execute(pose, width)
             tried.append(outcome.message)
             if outcome.lifted or len(tried) == 3:
