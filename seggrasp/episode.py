@@ -373,17 +373,32 @@ class Episode:
         targets: Sequence[str] | None = None,
         skip: Callable[[Slot], bool] | None = None,
         on_record: Callable[[TrialRecord], None] | None = None,
+        on_plan: Callable[[PartPlan], None] | None = None,
+        before: Callable[[Slot], None] | None = None,
     ) -> list[TrialRecord]:
-        """Plan `method` and execute its slots for each target prompt (those `skip` accepts are left out)."""
+        """Plan `method` and execute its slots for each target prompt (those `skip` accepts are left out). Hooks:
+        `on_plan` sees the plan before any slot, `before` each slot about to be executed, `on_record` its record."""
+        plan = self.plan(method)
+        if on_plan is not None:
+            on_plan(plan)
         records = []
-        for slot in self.slots(self.plan(method), targets):
+        for slot in self.slots(plan, targets):
             if skip is not None and skip(slot):
                 continue
+            if before is not None:
+                before(slot)
             record = self.execute(slot)
             records.append(record)
             if on_record is not None:
                 on_record(record)
         return records
+
+    def moves_cell(self, slot: Slot) -> bool:
+        """Whether executing `slot` moves the cell: it has a grasp whose outcome `outcome_cache` does not hold."""
+        if slot.grasp is None:
+            return False
+        key = grasp_key(slot.grasp.poses[0], float(slot.grasp.widths[0]))
+        return self.outcome_cache is None or key not in self.outcome_cache
 
     def execute(self, slot: Slot, reset: bool = True) -> TrialRecord:
         """Execute one slot's grasp and score it. The scene is reset first unless `reset` is False, or the cell does

@@ -18,6 +18,7 @@ import numpy as np
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, TrialRecord, grasp_key
 from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
+from seggrasp.method import PartPlan
 from seggrasp.objects import ObjectModel
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
@@ -210,7 +211,6 @@ def run_object(
     `decomposition_cache`: the writable decomposition cache (default the user's; the bundled one is searched too)."""
     recorded = recorded if recorded is not None else recorded_index(out)(context.object_id, config.seed)
     sink = sink or Sink(out)
-    done = {trial_key(r) for r in recorded.trials}
     settings = EpisodeSettings(
         seed=config.seed, top_k=config.top_k, perceive=config.perceive,
         workspace=workspace_of(cell) if config.perceive else None, decomposition_workers=1 if parallel else None,
@@ -225,42 +225,55 @@ def run_object(
     )
     if config.record and not hasattr(cell, "record_next"):
         raise ValueError(f"--record needs a cell that records picture strips; {type(cell).__name__} does not")
-    n_new = 0
+    hooks = _Hooks(episode, config, out, sink, {trial_key(r) for r in recorded.trials})
     for method in config.methods:
-        plan = episode.plan(method)
-        if episode.truth_on_mesh is not None and method not in recorded.segmented:
-            seg = segmentation_record(context, plan.method, plan.detector, plan.labels, episode)
-            sink.add("segmentations.jsonl", dict(seg, seed=config.seed))
-        filmed = 0
-        for slot in episode.slots(plan):
-            prompt = context.prompts[slot.prompt_index]
-            if (context.object_id, config.seed, method, prompt, slot.rank) in done:
-                continue
-            strip = None
-            if filmed < config.record and slot.grasp is not None:
-                strip = strip_path(out, method, context.object_id, prompt, slot.rank, config.seed)
-                filmed += 1
-                if _runs_the_cell(episode, slot):
-                    cell.record_next(strip)
-            record = episode.execute(slot)
-            record_extra(record, config)
-            if strip is not None:
-                if record.reused_outcome:  # the cell did not move for it: film the same grasp in the same scene
-                    film(cell, context, slot, strip)
-                caption_strip(strip, record)
-            sink.add("trials.jsonl", record.to_json())
-            n_new += 1
+        segment = method not in recorded.segmented and episode.truth_on_mesh is not None
+        hooks.filmed = 0
+        episode.run(method, skip=hooks.skip, before=hooks.before, on_record=hooks.on_record,
+                    on_plan=hooks.on_plan if segment else None)
     if not recorded.curve and episode.truth_on_mesh is not None and any(m != "oracle" for m in config.methods):
         sink.add("curves.jsonl", dict(threshold_curve(episode), seed=config.seed))
-    return n_new
+    return hooks.n_new
 
 
-def _runs_the_cell(episode: Episode, slot: Slot) -> bool:
-    """Whether executing `slot` moves the cell: it has a grasp whose outcome is not reused from the cache."""
-    if slot.grasp is None:
-        return False
-    key = grasp_key(slot.grasp.poses[0], float(slot.grasp.widths[0]))
-    return episode.outcome_cache is None or key not in episode.outcome_cache
+class _Hooks:
+    """The benchmark's hooks into `Episode.run` for one object: the segmentation record of each plan, the slots
+    `out` holds skipped, the first `config.record` slots with a grasp per method filmed, each record to the sink."""
+
+    def __init__(self, episode: Episode, config: RunConfig, out: Path, sink: Sink, done: set[tuple]) -> None:
+        self.episode, self.config, self.out, self.sink, self.done = episode, config, out, sink, done
+        self.filmed = self.n_new = 0
+        self.slot: Slot | None = None
+        self.strip: Path | None = None
+
+    def on_plan(self, plan: PartPlan) -> None:
+        seg = segmentation_record(self.episode.context, plan.method, plan.detector, plan.labels, self.episode)
+        self.sink.add("segmentations.jsonl", dict(seg, seed=self.config.seed))
+
+    def _key(self, slot: Slot) -> tuple:
+        context = self.episode.context
+        return context.object_id, self.config.seed, slot.method, context.prompts[slot.prompt_index], slot.rank
+
+    def skip(self, slot: Slot) -> bool:
+        return self._key(slot) in self.done
+
+    def before(self, slot: Slot) -> None:
+        self.slot, self.strip = slot, None
+        if self.filmed < self.config.record and slot.grasp is not None:
+            _, _, method, prompt, rank = self._key(slot)
+            self.strip = strip_path(self.out, method, self.episode.context.object_id, prompt, rank, self.config.seed)
+            self.filmed += 1
+            if self.episode.moves_cell(slot):
+                self.episode.cell.record_next(self.strip)
+
+    def on_record(self, record: TrialRecord) -> None:
+        record_extra(record, self.config)
+        if self.strip is not None:
+            if record.reused_outcome:  # the cell did not move for it: film the same grasp in the same scene
+                film(self.episode.cell, self.episode.context, self.slot, self.strip)
+            caption_strip(self.strip, record)
+        self.sink.add("trials.jsonl", record.to_json())
+        self.n_new += 1
 
 
 def _reusable_outcomes(existing: list[dict], config: RunConfig) -> dict | None:
