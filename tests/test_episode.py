@@ -83,6 +83,23 @@ def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
     assert [r.lift_height for r in first] == [r.lift_height for r in again]
 
 
+def test_run_s_hooks_see_the_plan_then_each_slot_before_and_its_record_after(cell, cylinder) -> None:
+    """The benchmark's hooks (sim/evaluate/runner.py): a skipped slot is neither announced nor executed, and
+    `moves_cell` says before a slot whether its outcome will be reused."""
+    cache: dict = {}
+    context = EpisodeContext.from_object(cylinder, scene_seed=2)
+    truth = GroundTruth.of_object(cylinder, context.prompts)
+    episode = Episode(cell, context, None, truth, EpisodeSettings(top_k=2), outcome_cache=cache)
+    for run in range(2):
+        events: list = []
+        records = episode.run("oracle", ["side"], skip=lambda slot: slot.rank == 1,
+                              on_plan=lambda plan: events.append(("plan", plan.method)),
+                              before=lambda slot: events.append(("before", slot.rank, episode.moves_cell(slot))),
+                              on_record=lambda record: events.append(("record", record.rank, record.reused_outcome)))
+        assert [r.rank for r in records] == [0]
+        assert events == [("plan", "oracle"), ("before", 0, run == 0), ("record", 0, run == 1)]
+
+
 def test_coarse_episode_names_its_detector_and_executes_on_voted_faces(cell, cylinder) -> None:
     streamed = []
     records = run_episode(cell, cylinder, "coarse", DetectorSpec(preset="perfect"), targets=[" SIDE "], top_k=2,

@@ -221,8 +221,7 @@ def test_a_ray_address_that_accepts_and_never_answers_is_refused_within_the_dead
     assert time.monotonic() - started < 5
 
 
-@pytest.mark.slow
-def test_a_ray_head_passes_the_probe_and_sigterm_stops_a_ray_driver_cleanly(tmp_path) -> None:
+def test_a_ray_head_passes_the_probe() -> None:
     import ray
 
     from sim.evaluate.ray_engine import _probe
@@ -233,6 +232,9 @@ def test_a_ray_head_passes_the_probe_and_sigterm_stops_a_ray_driver_cleanly(tmp_
     finally:
         ray.shutdown()
 
+
+@pytest.mark.slow
+def test_sigterm_stops_a_ray_driver_cleanly(tmp_path) -> None:
     out = tmp_path / "out"
     driver = subprocess.Popen([sys.executable, "-m", "sim.evaluate", *SMALL, "--engine", "ray", "--out", str(out)],
                               cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
