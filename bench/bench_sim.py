@@ -1,4 +1,5 @@
-"""Benchmark of the PyBullet cell: physics steps per second, one grasp-and-lift trial (arm and floating), capture.
+"""Benchmark of the PyBullet cell: physics steps per second, one grasp-and-lift trial (UR5 arm, floating 2F-85 and the
+Franka Panda), capture.
 
     python bench/bench_sim.py [--trials 5] [--scene-png docs/scene.png] [--against DIR] [--out docs/results/bench-sim.md]
 
@@ -28,15 +29,16 @@ from PIL import Image
 from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
-from sim.cell import EMBODIMENTS, SimCell
+from sim.cell import EMBODIMENTS, ROBOTS, SimCell
 from sim.primitives import primitive_object, top_down_grasp
 from sim.world import PhysicsSettings
 
 
 def bench_embodiment(
-    box, embodiment: str, trials: int, physics: PhysicsSettings | None = None, idle_and_capture: bool = True
+    box, embodiment: str, trials: int, physics: PhysicsSettings | None = None, idle_and_capture: bool = True,
+    robot: str = "ur5",
 ) -> dict[str, float]:
-    with SimCell([box], embodiment=embodiment, seed=0, image_size=(640, 480), physics=physics) as cell:
+    with SimCell([box], embodiment=embodiment, seed=0, robot=robot, image_size=(640, 480), physics=physics) as cell:
         reset_times, trial_times, steps, lifted = [], [], [], 0
         for seed in range(trials):
             start = time.perf_counter()
@@ -156,8 +158,10 @@ def main() -> None:
     print(lines[0], flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         box = primitive_object("box", (0.05, 0.05, 0.08), tmp, mass=0.2)
-        for embodiment in EMBODIMENTS:
-            lines.append(_line(embodiment, bench_embodiment(box, embodiment, args.trials), args.trials))
+        systems = [(embodiment, embodiment, "ur5") for embodiment in EMBODIMENTS]
+        systems += [(robot, "arm", robot) for robot in ROBOTS if robot != "ur5"]
+        for label, embodiment, robot in systems:
+            lines.append(_line(label, bench_embodiment(box, embodiment, args.trials, robot=robot), args.trials))
             print(lines[-1], flush=True)
         if args.against is not None:
             for line in compare_checkouts(args.against.resolve(), args.trials):
