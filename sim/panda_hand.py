@@ -1,7 +1,7 @@
 """The Franka Hand as simulated: `FrankaHandDrive` drives the two finger slides of pybullet_data's Franka Panda
 (`sim.panda.panda_urdf`), with the same care as the 2F-85 (`sim.gripper.Robotiq2F85`).
 
-The Franka Hand's fingers are two prismatic joints already (`panda_finger_joint1/2`, 0-40 mm each, one motor and a
+The Franka Hand's fingers are two prismatic joints already (`panda_finger_joint1/2`, half the stroke each, one motor and a
 rack moving both): no linkage to re-hang. As on the 2F-85 the fingers are coupled by a gear constraint (one motor),
 close with velocity control at the closing speed with the grip force as its limit until they stall, then push with
 the grip force itself (`squeeze`), so the pads hold with the set force through the lift and hold and stop on the
@@ -153,7 +153,7 @@ class FrankaHandDrive:
 
     def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
         """Close until both fingers stall (contact: from then on they `squeeze`) or the hand is shut; returns the
-        number of physics steps. The Franka Hand closes its 80 mm at 50 mm/s per finger in 0.8 s (192 steps)."""
+        number of physics steps (the Franka Hand closes its stroke at its closing speed in 0.8 s, 192 steps)."""
         self.command_close()
         history: list[tuple[float, float]] = []
         window = self.settings.stall_steps

@@ -3,6 +3,9 @@ without sinking in, symmetrically, at its 20 N and its 70 N continuous force; it
 the sampler plans no grasp wider than its 80 mm stroke; the gym env passes gymnasium's checker; it lifts a twin
 object."""
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -146,3 +149,18 @@ def test_the_panda_lifts_a_twin_object():
                 break
         assert outcome.lifted, tried
         assert outcome.lift_height >= 0.18
+
+
+#: The modules that read a hand's description (`seggrasp.hands`); none of them may write a hand's number.
+READERS = ("seggrasp/grasp/*.py", "seggrasp/cell.py", "seggrasp/baselines.py", "sim/gripper.py", "sim/gripper_urdf.py",
+           "sim/floating_gripper.py", "sim/grasp_primitive.py", "sim/cell.py", "sim/robot.py", "sim/env.py",
+           "sim/panda.py", "sim/panda_hand.py")
+HAND_NUMBERS = re.compile(r"0\.085|\b85 ?mm|\b235\b|0\.08\b|\b80 ?mm|\b140 ?N|\b70 ?N|22 ?x ?37\.5|\b0\.011\b|0\.01875")
+
+
+def test_no_hand_number_outside_the_descriptions():
+    root = Path(__file__).resolve().parents[1]
+    found = [f"{path.relative_to(root)}:{number}: {line.strip()}"
+             for pattern in READERS for path in sorted(root.glob(pattern))
+             for number, line in enumerate(path.read_text().splitlines(), 1) if HAND_NUMBERS.search(line)]
+    assert not found, "\n".join(found)

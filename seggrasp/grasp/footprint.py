@@ -1,6 +1,6 @@
 """What lies under a grasp's pads: the faces nearest its contacts, and the surface each pad closes on.
 
-A grasp's two contact points say little about what its pads (a 2F-85's are 22 x 37.5 mm) will press on. `PadFootprint` finds, on a
+A grasp's two contact points say little about what its pads (`Hand.pad_half_width` x `pad_half_length`) will press on. `PadFootprint` finds, on a
 dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
 its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.pads.pad_touches`), with the pad widened
 by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge

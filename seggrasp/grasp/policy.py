@@ -80,7 +80,7 @@ class PartPolicy:
     """How grasps are chosen per prompt from per-face probabilities (module docstring). The defaults were chosen
     on the twin's seeds 0 and 1 (docs/results/grasp-selection.md)."""
 
-    footprint_radius: float = 0.008  # m; about half a 22 mm pad
+    footprint_radius: float = 0.008  # m; about half the 2F-85's pad width (seggrasp.hands)
     region_fraction: float = 0.65
     min_probability: float = 0.05
 
