@@ -43,6 +43,8 @@ TRACE_ENV = "SEGGRASP_RAY_TRACE"
 CONNECT_TIMEOUT = 10.0
 #: The driver waits for finished tasks in slices of this many seconds (so a signal is handled between them).
 WAIT_SLICE = 1.0
+#: How long a stopped driver waits for the processes of its local instance to end before killing them, s.
+TAKE_DOWN_TIMEOUT = 10.0
 HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n"
 HTTP2_EMPTY_SETTINGS = bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])  # length 0, type SETTINGS, no flags, stream 0
 HTTP2_SETTINGS = 4
@@ -96,9 +98,6 @@ def _connect(workers: int, address: str | None) -> bool:
     if ray.is_initialized():
         return False
     options = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": True}
-    # Ray's native failure handler turns a SIGTERM during ray.init into a signal dump and an abort (exit 134);
-    # without it the signal reaches Python's handler (see _Stopper). A worker's crash is still reported by Ray.
-    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     if address:
         _probe(address)
         try:
@@ -188,6 +187,12 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
     """Evaluate every (object, seed) of the run that `out` does not hold completely as Ray tasks, appending each
     finished task's records to `out` (driver side); `on_status` sees every status, as with the local engine
     (runner.evaluate_objects). Returns the crashes."""
+    # Ray's native failure handler (read when ray is imported) turns a SIGTERM during ray.init into a signal dump
+    # and an abort (exit 134); without it the signal reaches Python's handler (_Stopper). Ray still reports a
+    # worker's crash.
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
+    import ray
+
     tasks, complete = make_tasks(config, out, parallel=True, collect=True)
     for status in complete:
         on_status(status)
@@ -202,6 +207,7 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
             except SystemExit as exc:  # ray.init's own SIGTERM handler, in place while it connects
                 if exc.code != signal.SIGTERM:
                     raise
+                _take_down(ray.shutdown)  # what ray.init had started
                 raise RunStopped("stopped by SIGTERM", 128 + signal.SIGTERM) from None
             stopper.install()
             trace.mark("connected")
@@ -237,7 +243,7 @@ def _run_tasks(tasks: list[ObjectTask], twins: dict[str, TwinObject], config: Ru
             _stopping.append(threading.Thread(target=_stop, args=(trace,), name="ray-shutdown"))
             _stopping[-1].start()
         elif started_here:  # stopped from outside: take the instance down before exiting
-            _stop(trace)
+            _take_down(lambda: _stop(trace))
         else:
             trace.write()
 
@@ -256,6 +262,53 @@ def _receive(ref, task: ObjectTask, trace: Trace, on_status) -> list[dict]:
     for name, records in status.pop("records", {}).items():
         JsonLines(Path(task.out) / name).extend(records)
     return on_status(status)
+
+
+def _take_down(shutdown) -> None:
+    """Call `shutdown` (of the local instance), then end the processes this driver started that outlive it for
+    `TAKE_DOWN_TIMEOUT` s (a node's agents, orphaned when the run is stopped mid-task, wait for nothing)."""
+    started = _descendants(os.getpid())
+    shutdown()
+    deadline = time.monotonic() + TAKE_DOWN_TIMEOUT
+    while _running(started) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    for pid in _running(started):
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except OSError:  # ended meanwhile
+            pass
+
+
+def _descendants(pid: int) -> dict[int, str]:
+    """{pid: start time} of the processes descending from `pid` (from /proc; empty where there is none)."""
+    parents = {}
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            fields = (entry / "stat").read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        parents[int(entry.name)] = (int(fields[1]), fields[19])
+    found, frontier = {}, [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, (ppid, start) in parents.items():
+            if ppid == parent and child not in found:
+                found[child] = start
+                frontier.append(child)
+    return found
+
+
+def _running(processes: dict[int, str]) -> list[int]:
+    """Those of `processes` ({pid: start time}) still running (the same process: same start time, not a zombie)."""
+    running = []
+    for pid, start in processes.items():
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+        except OSError:
+            continue
+        if fields[19] == start and fields[0] != "Z":
+            running.append(pid)
+    return running
 
 
 def _stop(trace: Trace) -> None:
