@@ -40,6 +40,7 @@ from hardware.fields import FieldReader, read_yaml
 from hardware.kinematics import ARM_MODELS, forward_kinematics
 from hardware.realsense import RealSenseCamera
 from hardware.robotiq import FAULTS, GripperState
+from seggrasp.hands import ROBOTIQ_2F85
 
 #: Most poses a calibration tour may list (hand-eye calibration wants 10-30).
 MAX_CALIBRATION_POSES = 200
@@ -279,8 +280,8 @@ def _grasp(args: argparse.Namespace) -> int:
     if abs(args.yaw) > 2 * math.pi:
         raise ValueError(f"--yaw must be within [-2 pi, 2 pi] rad, got {args.yaw:g}")
     if not (math.isfinite(args.width) and 0 <= args.width <= 1):
-        raise ValueError(f"--width must be the object's width in metres (0-1; the 2F-85 opens 0.085), got "
-                         f"{args.width:g}")
+        raise ValueError(f"--width must be the object's width in metres (0-1; the 2F-85 opens "
+                         f"{ROBOTIQ_2F85.stroke:g}), got {args.width:g}")
     config = load_config(args.config)
     arm = ARM_MODELS[config.robot.model]
     reach = arm.reach + float(np.linalg.norm(config.robot.T_flange_gripper[:3, 3]))

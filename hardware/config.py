@@ -24,14 +24,14 @@ from hardware.calibration import load_extrinsics
 from hardware.fields import ConfigError, FieldReader, read_yaml, shown
 from hardware.kinematics import ARM_MODELS
 from seggrasp.cell import DEFAULT_GRIP_FORCE, FINGER_SPEED_RANGE, GRIP_FORCE_RANGE
-from seggrasp.grasp.types import GripperGeometry
+from seggrasp.hands import ROBOTIQ_2F85
 
 #: Arm models whose nominal kinematics (hardware/kinematics.py) the joint-path safety check knows.
 UR_MODELS = tuple(ARM_MODELS)
-#: The 2F-85's finger speed and grip force ranges and the default force live in `seggrasp.cell`; its 85 mm stroke
-#: (datasheet) is the grasp planner's `GripperGeometry.max_opening`. A measured `gripper.stroke` (the opening
-#: between the pads when fully open) may fall short of it with thicker custom pads, down to half.
-STROKE_2F85 = GripperGeometry.max_opening
+#: The 2F-85's numbers (stroke, finger speed and grip force ranges, default force) are its hand description's,
+#: `seggrasp.hands.ROBOTIQ_2F85`. A measured `gripper.stroke` (the opening between the pads when fully open) may fall
+#: short of the datasheet stroke with thicker custom pads, down to half.
+STROKE_2F85 = ROBOTIQ_2F85.stroke
 STROKE_RANGE = (0.5 * STROKE_2F85, 1.03 * STROKE_2F85)
 #: UR5 (CB3) and UR5e datasheets: every joint turns at up to 180 deg/s (3.14 rad/s); the tool ("TCP speed,
 #: typical") at up to 1 m/s.
@@ -45,7 +45,7 @@ UR_TOOL_ACCELERATION_MAX = 150.0
 #: Longest waits (s) a config may set. A motion that the cell's speeds plan to take longer than MAX_MOTION_TIMEOUT
 #: is a configuration mistake (the UR5 crosses its whole reach in seconds), and so is a gripper reply or finger
 #: settle margin beyond MAX_GRIPPER_TIMEOUT (the URCap answers within milliseconds, a full 2F-85 stroke takes
-#: 85 mm / 20 mm/s = 4.25 s at its slowest). The hold is ten times the twin's 1 s at most: longer only delays the
+#: stroke / slowest finger speed, 4.25 s). The hold is ten times the twin's 1 s at most: longer only delays the
 #: verdict.
 MAX_MOTION_TIMEOUT = 300.0
 MAX_GRIPPER_TIMEOUT = 60.0
@@ -77,7 +77,7 @@ class GripperConfig:
     closed_register: int  # POS register value read when closed on nothing (about 230 after activation)
     timeout: float  # s, per socket reply; a finger motion may take its travel at the commanded speed plus this
     speed: float  # m/s finger speed used for grasps (the 2F-85 does 0.02-0.15)
-    force: float  # N grip force used for grasps (the 2F-85 does 20-235)
+    force: float  # N grip force used for grasps (within the 2F-85's GRIP_FORCE_RANGE)
     tip_beyond_origin: float  # m the fingertips reach past the gripper origin (pad centres) along +z
     closing_shift: float  # m the pad centres move along +z from fully open to closed (linkage arc), measured
 

@@ -86,10 +86,10 @@ def shapegrasp_grasps(
         T_world_grasp[:3, 3] = T_world_obj[:3, :3] @ centroid + T_world_obj[:3, 3]
         T_world_grasp[2, 3] = max(T_world_grasp[2, 3], lowest_origin)
         T_obj_grasp = T_obj_world @ T_world_grasp
-        contacts, widths = pad_contacts(T_obj_grasp[None], gripper.max_opening, cloud, gripper.pad_half_width,
+        contacts, widths = pad_contacts(T_obj_grasp[None], gripper.stroke, cloud, gripper.pad_half_width,
                                        gripper.pad_half_length)
         # a grasp whose pads sweep nothing closes on air from the full opening (its contacts stay NaN)
-        width = float(widths[0]) if np.isfinite(widths[0]) else gripper.max_opening
+        width = float(widths[0]) if np.isfinite(widths[0]) else gripper.stroke
         grasps.append(GraspSet(T_obj_grasp[None], [width], [float(votes[part, k])], contacts))
         LOG.debug("shapegrasp: prompt %d -> part %d of %d, width %.3f", k, part, votes.shape[0], width)
     return grasps

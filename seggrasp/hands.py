@@ -37,14 +37,6 @@ from dataclasses import dataclass
 import numpy as np
 
 
-class _Stroke:
-    """`hand.max_opening`: the hand's stroke. Read on the class (`GripperGeometry.max_opening`, which
-    hardware/config.py's STROKE_2F85 does), the 2F-85's, the hand the real cell has."""
-
-    def __get__(self, hand, owner=None) -> float:
-        return (ROBOTIQ_2F85 if hand is None else hand).stroke
-
-
 @dataclass(frozen=True)
 class Hand:
     """One parallel gripper (module docstring).
@@ -82,7 +74,6 @@ class Hand:
     closing_speed: float
     continuous_grip_force: float | None = None
 
-    max_opening = _Stroke()
 
     def __post_init__(self) -> None:
         low, high = self.grip_force_range
@@ -115,9 +106,6 @@ class Hand:
             boxes.append([[-half_x, -half_y, z_min], [half_x, half_y, z_max]])
         return np.array(boxes, dtype=np.float64)
 
-
-#: The box model's former name (seggrasp.grasp.types re-exports it).
-GripperGeometry = Hand
 
 ROBOTIQ_2F85 = Hand(
     name="robotiq_2f85",

@@ -32,7 +32,7 @@ log = logging.getLogger(__name__)
 
 #: Where the twin lives (the repository's `assets/` folder); override with SEGGRASP_ASSETS_DIR.
 ASSETS_DIR = Path(os.environ.get("SEGGRASP_ASSETS_DIR", Path(__file__).resolve().parents[1] / "assets"))
-#: A graspable object for a 2F-85 (85 mm stroke) on a table: its largest side must lie in this range (metres).
+#: A graspable object for the twin's hands on a table: its largest side must lie in this range (metres).
 GRASPABLE_EXTENT_M = (0.02, 1.0)
 
 

@@ -68,7 +68,7 @@ def test_contacts_on_surface_within_friction_cone_and_stroke(object_and_grasps) 
     angle_1 = np.arccos(np.clip(np.einsum("ij,ij->i", -axis, -normals[:, 1]), -1, 1))
     assert angle_0.max() <= half_angle + 1e-6
     assert angle_1.max() <= half_angle + 1e-6
-    assert g.widths.max() <= ROBOTIQ_2F85.max_opening
+    assert g.widths.max() <= ROBOTIQ_2F85.stroke
     assert g.widths.min() > 0
 
 

@@ -5,7 +5,7 @@ from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator, PointCloudGraspModel
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
-from seggrasp.grasp.types import ROBOTIQ_2F85, GraspGenerator, GraspSet, GripperGeometry
+from seggrasp.grasp.types import ROBOTIQ_2F85, GraspGenerator, GraspSet, Hand
 
 __all__ = [
     "AntipodalConfig",
@@ -13,7 +13,7 @@ __all__ = [
     "GraspGenerator",
     "GraspPrediction",
     "GraspSet",
-    "GripperGeometry",
+    "Hand",
     "LearnedGraspGenerator",
     "PadFootprint",
     "PointCloudGraspModel",

@@ -235,7 +235,7 @@ class AntipodalSampler:
         # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; a pinch
         # must touch the part over `pinch_min_band` of its pads
         facing = alignment >= np.cos(np.deg2rad(cfg.level_facing_deg))
-        fits = (widths <= self.gripper.max_opening - cfg.width_margin) & (facing | ~from_sweep)
+        fits = (widths <= self.gripper.stroke - cfg.width_margin) & (facing | ~from_sweep)
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
@@ -264,7 +264,7 @@ class AntipodalSampler:
         points, faces = _surface_samples(mesh, cfg, com, rng)
         p, q, n_p, n_q = _opposite_contacts(mesh, points, face_normals[faces], face_normals)
         width = np.linalg.norm(q - p, axis=1)
-        ok = (width >= cfg.min_width) & (width <= self.gripper.max_opening - cfg.width_margin)
+        ok = (width >= cfg.min_width) & (width <= self.gripper.stroke - cfg.width_margin)
         axis = np.zeros_like(p)
         axis[ok] = (q[ok] - p[ok]) / width[ok, None]
         half_angle = float(np.arctan(cfg.friction_coefficient))
@@ -383,7 +383,7 @@ class AntipodalSampler:
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
         """True where every corner of every gripper box is at least `clearance` above the plane."""
         corners = box_corners(self.gripper.boxes(0.0))  # (B * 8, 3) at zero opening
-        # the finger boxes move outwards by half the opening along x: -x finger first, then +x (GripperGeometry.boxes)
+        # the finger boxes move outwards by half the opening along x: -x finger first, then +x (Hand.boxes)
         n_finger = 8 * len(self.gripper.finger_boxes)
         shift = np.zeros(len(corners))
         shift[:n_finger], shift[n_finger : 2 * n_finger] = -0.5, 0.5

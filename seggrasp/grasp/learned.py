@@ -104,7 +104,7 @@ class LearnedGraspGenerator:
         if contacts.ndim == 2 and contacts.shape[1:] == (3,):
             contacts = np.stack([contacts, contacts + widths[:, None] * poses[:, :3, 0]], axis=1)
         grasps = GraspSet(poses, widths, raw.scores, contacts)
-        keep = grasps.widths <= self.gripper.max_opening
+        keep = grasps.widths <= self.gripper.stroke
         if table_plane is not None:
             plane = np.asarray(table_plane, dtype=np.float64).reshape(4)
             keep &= grasps.poses[:, :3, 3] @ plane[:3] + plane[3] >= 0.0

@@ -1,5 +1,5 @@
 """Grasp containers and the `GraspGenerator` protocol; the parallel-gripper geometry is a hand's description
-(`seggrasp.hands`: `Hand`, here also under its former name `GripperGeometry`, and `ROBOTIQ_2F85`).
+(`seggrasp.hands`: `Hand` and `ROBOTIQ_2F85`, re-exported here).
 
 Gripper frame (docs/design.md section 3): z = approach direction, x = closing direction (finger to finger), origin between the
 pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two contact points of an antipodal grasp.
@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import trimesh
 
-from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, GripperGeometry, Hand  # noqa: F401 (re-exported)
+from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, Hand  # noqa: F401 (re-exported)
 
 
 @dataclass
