@@ -204,9 +204,7 @@ def evaluate_on_ray(config: RunConfig, out: Path, workers: int, address: str | N
             packing = packer.submit(_pack_timed, tasks, config.decomposition_seed, trace)
             try:
                 started_here = _connect(workers, address)
-            except SystemExit as exc:  # ray.init's own SIGTERM handler, in place while it connects
-                if exc.code != signal.SIGTERM:
-                    raise
+            except SystemExit:  # the SIGTERM handlers ray.init puts in place (until ours is back) exit
                 _take_down(ray.shutdown)  # what ray.init had started
                 raise RunStopped("stopped by SIGTERM", 128 + signal.SIGTERM) from None
             stopper.install()
