@@ -2,6 +2,7 @@
 
     python -m sim.lab serve --kinematic [--controller cb3|e-series] [--polyscope 3.15.7] ...
     python -m sim.lab serve --object mug_classic [--seed 0]          (the PyBullet twin drives the arm)
+    python -m sim.lab serve --object mug_classic --calibration-board 7x6:0.03   (a checkerboard on the flange)
     python -m sim.lab run [serve options] -- CMD ...
 
 `serve` listens on --host (127.0.0.1): dashboard 29999, script 30003, RTDE 30004, the Robotiq URCap socket 63352
@@ -42,6 +43,12 @@ def add_serve_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--object", help="twin mode: the object placed in the scene, e.g. mug_classic")
     parser.add_argument("--seed", type=int, default=0, help="twin mode: scene seed (default 0)")
     parser.add_argument("--recordings", help="twin mode: folder for the camera recordings (default: a temp dir)")
+    parser.add_argument("--calibration-board", metavar="COLSxROWS:SQUARE",
+                        help="twin mode: a checkerboard of COLSxROWS inner corners and SQUARE m squares fixed to the "
+                        "flange (sim/lab/board.py), e.g. 7x6:0.03; implies --render-at-rest")
+    parser.add_argument("--render-at-rest", action="store_true",
+                        help="twin mode: render the cameras again after every motion; the motion is reported "
+                        "finished once the new recordings are in place (default: once per placement)")
     parser.add_argument("--controller", choices=sorted(GENERATIONS), default="e-series",
                         help="controller generation: cb3 streams RTDE at 125 Hz, e-series at 500 Hz")
     parser.add_argument("--polyscope", help="PolyScope version X.Y.Z (default "
@@ -66,15 +73,23 @@ class Models:
 def build_models(args: argparse.Namespace) -> Models:
     """The arm and finger models `serve` drives: kinematic ones, or the twin's (sim/lab/twin.py)."""
     if args.kinematic:
+        if args.calibration_board or args.render_at_rest:
+            raise LabStartError("--calibration-board and --render-at-rest need the twin's cameras, not --kinematic")
         from sim.lab.kinematic import KinematicArm
         from sim.lab.robotiq import KinematicFingers
 
         return Models(KinematicArm(), KinematicFingers())
     if not args.object:
         raise SystemExit("sim.lab serve: name the object to place (--object mug_classic) or pass --kinematic")
+    from sim.lab.board import CalibrationBoard
     from sim.lab.twin import twin_models
 
-    return twin_models(object_id=args.object, seed=args.seed, recordings=args.recordings)
+    try:
+        board = None if args.calibration_board is None else CalibrationBoard.parse(args.calibration_board)
+    except ValueError as exc:
+        raise LabStartError(str(exc)) from None
+    return twin_models(object_id=args.object, seed=args.seed, recordings=args.recordings, board=board,
+                       render_at_rest=args.render_at_rest)
 
 
 class LabStartError(Exception):

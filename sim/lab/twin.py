@@ -3,6 +3,12 @@
 stepped in real time by a clock thread, with the control-channel commands `place`, `truth`, `camera_stop` and
 `twin_state` (`twin_models` is what `python -m sim.lab serve` runs).
 
+Cameras. By default the recordings are rendered once per placement. With `render_at_rest` (implied by a
+calibration board, sim/lab/board.py) they are rendered again whenever a motion of the arm has ended, and the
+controller reports that motion as finished only once the new recordings are in place: a client that captures after
+its moveL returns (`hardware.calibration.collect_samples`) sees the arm, and the board it carries, where the motion
+left them, as a real camera would, with no wait in the client.
+
 Frames. ur_rtde speaks the controller's base frame (the UR's DH base); the URDF's `base_link` is that frame turned
 by pi about z (`sim.robot.T_BASELINK_DHBASE`). After every placement the twin's UR5 body is turned so that its
 `base_link` sits at `T_WORLD_BASELINK` = T_DHBASE_BASELINK in the PyBullet world, which makes the world the RTDE
@@ -22,11 +28,12 @@ import numpy as np
 
 from sim.cell import SimCell
 from sim.gripper import Robotiq2F85
+from sim.lab.board import BoardBodies, CalibrationBoard
 from sim.lab.cameras import write_recordings
 from sim.lab.control import register
 from sim.lab.twin_arm import TwinArm
 from sim.lab.twin_fingers import TwinFingers
-from sim.robot import UR5Arm
+from sim.robot import UR5Arm, dh_forward
 
 log = logging.getLogger(__name__)
 
@@ -45,9 +52,16 @@ class TwinScene:
     fingers driven through `arm` / `fingers`, physics advanced by `advance` or by the clock thread (`start`).
     Every PyBullet call holds `lock`."""
 
-    def __init__(self, object_id: str, seed: int, recordings: str | Path | None) -> None:
+    def __init__(self, object_id: str, seed: int, recordings: str | Path | None,
+                 board: CalibrationBoard | None = None, render_at_rest: bool = False) -> None:
         self.lock = threading.RLock()
         self.recordings = None if recordings is None else Path(recordings)
+        self.board = board
+        #: whether the cameras are rendered again after every motion (module docstring)
+        self.render_at_rest = (render_at_rest or board is not None) and self.recordings is not None
+        self.renders = 0  # recordings written after a motion
+        self._board_bodies: BoardBodies | None = None
+        self._writing = threading.Lock()  # one recording writer at a time (they share the partial file names)
         self.sim_time = 0.0
         self.arm = TwinArm(self)
         self.fingers = TwinFingers(self)
@@ -91,6 +105,8 @@ class TwinScene:
             self.arm.reload(robot)
             self.fingers.reload(robot.gripper)
             self.joint_limits = _joint_limits(robot)
+            self._board_bodies = None if self.board is None else BoardBodies(cell.world.client, self.board)
+            self._place_board()
             self._placed = {"object": object_id, "seed": seed,
                             "T_world_obj": np.round(cell.object_mesh()[1], 9).tolist()}
             if self.recordings is not None:
@@ -99,8 +115,39 @@ class TwinScene:
                 self._clock.resync(time.monotonic() - started)
             placed, frames = dict(self._placed), dict(self._frames)
         # written with the physics running again: the recordings take a second or more per camera
-        paths = {} if self.recordings is None else write_recordings(frames, self.recordings)
+        paths = {} if self.recordings is None else self._write(frames)
         return dict(placed, recordings={serial: str(path) for serial, path in paths.items()})
+
+    def _write(self, frames: dict, **options) -> dict:
+        with self._writing:
+            return write_recordings(frames, self.recordings, **options)
+
+    def _place_board(self) -> None:
+        """Put the calibration board where the arm's actual joints put the flange (the lock is held)."""
+        if self._board_bodies is not None:
+            self._board_bodies.place(dh_forward(np.asarray(self.arm.actual_q())))
+
+    def render_soon(self, done) -> None:
+        """Render the cameras as the scene is now into new recordings, in a thread; then call `done()` (also when
+        rendering failed: the failure is logged, the old recordings stay)."""
+        threading.Thread(target=self._render_at_rest, args=(done,), name="twin-render", daemon=True).start()
+
+    def _render_at_rest(self, done) -> None:
+        try:
+            started = time.monotonic()
+            with self.lock:
+                if self.cell is None:
+                    return
+                self._place_board()
+                self._frames = frames = dict(zip(CAMERA_SERIALS, self.cell.capture(), strict=True))
+                if self._clock is not None:
+                    self._clock.resync(time.monotonic() - started)
+            self._write(frames)
+            self.renders += 1
+        except Exception:
+            log.exception("rendering the cameras after a motion failed; the recordings stay as they were")
+        finally:
+            done()
 
     def stop_cameras(self) -> dict:
         """The `camera_stop` fault: each camera's recording is replaced by one frame set, so the client's stream
@@ -109,7 +156,7 @@ class TwinScene:
             frames = dict(self._frames)
         if not frames:
             raise ValueError("camera_stop: this twin renders no cameras (it has no recordings folder)")
-        paths = write_recordings(frames, self.recordings, n_frames=1)
+        paths = self._write(frames, n_frames=1)
         return {"recordings": {serial: str(path) for serial, path in paths.items()}}
 
     def handlers(self) -> dict:
@@ -119,7 +166,9 @@ class TwinScene:
             "truth": lambda request: self.truth(),
             "camera_stop": lambda request: self.stop_cameras(),
             "twin_state": lambda request: {"safety_status": self.arm.safety_status,
-                                           "stop_reason": self.arm.stop_reason, **self.stats()},
+                                           "stop_reason": self.arm.stop_reason, "renders": self.renders,
+                                           **self.stats()},
+            "board": lambda request: self.board_pose(),
         }
 
     def truth(self) -> dict:
@@ -128,6 +177,17 @@ class TwinScene:
             return {"object": self._placed["object"], "seed": self._placed["seed"],
                     "T_world_obj": np.round(self.cell.object_mesh()[1], 9).tolist(),
                     "T_world_obj_placed": self._placed["T_world_obj"]}
+
+    def board_pose(self) -> dict:
+        """The calibration board (`board` command): its corners and square, `T_flange_board`, and `T_world_board`
+        where the arm's actual joints put it now."""
+        if self.board is None:
+            raise ValueError("board: this twin carries no calibration board (start it with --calibration-board)")
+        with self.lock:
+            T_world_flange = dh_forward(np.asarray(self.arm.actual_q()))
+        T = self.board.T_flange_board
+        return {"columns": self.board.columns, "rows": self.board.rows, "square": self.board.square,
+                "T_flange_board": np.round(T, 9).tolist(), "T_world_board": np.round(T_world_flange @ T, 9).tolist()}
 
     def lose_object(self) -> None:
         """Take the object out of the hand: it lands on the table beside the workspace."""
@@ -266,11 +326,15 @@ class Clock(threading.Thread):
                     "longest_step_ms": 1000.0 * self.longest_step}
 
 
-def twin_models(object_id: str, seed: int = 0, recordings: str | Path | None = None) -> TwinScene:
+def twin_models(object_id: str, seed: int = 0, recordings: str | Path | None = None,
+                board: CalibrationBoard | None = None, render_at_rest: bool = False) -> TwinScene:
     """The twin for `python -m sim.lab serve` (without --kinematic): a `TwinScene` with `object_id` placed at
-    `seed`, its recordings in `recordings` (default `RECORDINGS`), and the control commands `place`, `truth`,
-    `camera_stop` and `twin_state` (the arm's safety status, why it last stopped, the clock's account) registered. The caller starts and closes it."""
-    scene = TwinScene(object_id, seed, RECORDINGS if recordings is None else recordings)
+    `seed`, its recordings in `recordings` (default `RECORDINGS`), the calibration `board` on its flange if given
+    (recordings rendered after every motion then, as with `render_at_rest`), and the control commands `place`,
+    `truth`, `camera_stop`, `twin_state` (the arm's safety status, why it last stopped, the recordings rendered
+    after motions, the clock's account) and `board` registered. The caller starts and closes it."""
+    scene = TwinScene(object_id, seed, RECORDINGS if recordings is None else recordings, board=board,
+                      render_at_rest=render_at_rest)
     for name, handler in scene.handlers().items():
         register(name, handler)
     return scene

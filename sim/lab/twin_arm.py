@@ -3,7 +3,8 @@
 A moveJ, moveL or stop is planned by the controller's kinematic model (`sim.lab.kinematic.KinematicArm`, started at
 the arm's actual joints: trapezoidal profiles, inverse kinematics, joint limits, a safety plane at the table top)
 and tracked every physics step by the UR5's joint servos (`UR5Arm._command`, as the twin's own motions); a motion
-ends when the arm has settled on its end. The arm halts where it is on a safety stop: one the controller sets, or a
+ends when the arm has settled on its end (and, when the scene renders its cameras after every motion, once they
+have been rendered). The arm halts where it is on a safety stop: one the controller sets, or a
 protective stop of its own when, during a motion, a link of the arm (upper arm to wrist) touches the table, or the
 robot presses on the table, directly or through the object, with more than `PROTECTIVE_FORCE` for
 `PROTECTIVE_STEPS` physics steps. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
@@ -155,13 +156,23 @@ class TwinArm:
             settled = (np.abs(self._q - np.asarray(reference.q)).max() < SETTLED_ERROR
                        and np.abs(self._qd).max() < SETTLED_SPEED)
             if settled or self._settling > SETTLE_TIME:
-                self._reference, self._moving = None, False
+                self._reference = None
+                if self.scene.render_at_rest:  # finished once the cameras have seen where it ended
+                    self.scene.render_soon(self._rendered)
+                else:
+                    self._moving = False
         else:
             self._settling = 0.0
         if self.safety_status == "normal" and reference is not None:  # the controller watches its own motions
             reason = self._collision(robot, table, obj, weight)
             if reason:
                 self._protective_stop(robot, reason)
+
+    def _rendered(self) -> None:
+        """The cameras were rendered after the last motion: it has finished, unless another one started since."""
+        with self.scene.lock:
+            if self._reference is None:
+                self._moving = False
 
     def _protective_stop(self, robot: UR5Arm, reason: str) -> None:
         self.safety_status, self.stop_reason = "protective_stop", reason
