@@ -12,7 +12,9 @@ SIGINT stop the run and its CoACD processes (exit 143 / 130).
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
+import os
 import signal
 import sys
 import tempfile
@@ -100,19 +102,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def check_output_folder(out: Path) -> None:
-    """ValueError unless `out` is (or can be created as) a writable folder; creates nothing that stays."""
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out} exists and is not a folder")
-    existing = out
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"--out {out} cannot be created: {existing} is not a folder")
+def check_output_folder(out: Path, option: str = "--out") -> None:
+    """ValueError unless `out` (given as `option`) is, or can be created as, a writable folder; creates nothing that
+    stays."""
     try:
+        if out.exists() and not out.is_dir():
+            raise ValueError(f"{option} {out} exists and is not a folder")
+        existing = out
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir():
+            raise ValueError(f"{option} {out} cannot be created: {existing} is not a folder")
         tempfile.TemporaryDirectory(dir=existing, prefix=".seggrasp-write-test-").cleanup()
+        longest = os.pathconf(existing, "PC_NAME_MAX")
+        for part in out.relative_to(existing).parts:  # the folders still to be made
+            if len(os.fsencode(part)) > longest:
+                raise OSError(errno.ENAMETOOLONG, f"a name of {len(os.fsencode(part))} bytes, more than the "
+                              f"{longest} the file system takes")
     except OSError as exc:
-        raise ValueError(f"--out {out} is not writable: {exc}") from exc
+        raise ValueError(f"{option} {str(out)[:120]} is not writable: {exc.strerror or exc}") from exc
 
 
 def _read_ground_truth(path: Path, prepared: PreparedMesh, prompts: list[str]) -> PartLabels:
@@ -139,6 +147,8 @@ def run_segment(args: argparse.Namespace) -> dict:
 
     prompts = check_prompts(args.prompts)
     check_output_folder(args.out)
+    if args.cache_dir is not None:
+        check_output_folder(args.cache_dir, "--cache-dir")
     spec = parse_detector(args.detector, args.weights, seed=args.seed)
     check_weights(spec.name, spec.weights)  # before any work: an unreachable hub id fails in a moment
     log = logging.getLogger("seggrasp.cli")  # __name__ is "__main__" under python -m

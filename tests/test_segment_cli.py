@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -202,25 +203,34 @@ def test_cli_ground_truth_must_name_a_prompt(hammer_files, tmp_path: Path, capsy
     assert not out.exists()  # checked before anything is computed or written
 
 
-@pytest.mark.parametrize("kind", ["file", "inside_a_file", "unwritable"])
-def test_cli_unusable_out_is_refused_before_any_work(hammer_files, tmp_path: Path, capsys, monkeypatch, kind) -> None:
+@pytest.mark.parametrize("option", ["--out", "--cache-dir"])
+@pytest.mark.parametrize("kind", ["file", "inside_a_file", "unwritable", "name_too_long"])
+def test_cli_unusable_out_is_refused_before_any_work(hammer_files, tmp_path: Path, capsys, monkeypatch, kind,
+                                                     option) -> None:
     mesh_path, labels_path, _ = hammer_files
     a_file = tmp_path / "taken"
     a_file.write_text("x")
-    out = {"file": a_file, "inside_a_file": a_file / "sub", "unwritable": tmp_path / "ro" / "out"}[kind]
+    folder = {"file": a_file, "inside_a_file": a_file / "sub", "unwritable": tmp_path / "ro" / "out",
+              "name_too_long": tmp_path / ("x" * 300) / "sub"}[kind]
     if kind == "unwritable":
         (tmp_path / "ro").mkdir()
 
+        make_temporary = tempfile.TemporaryDirectory
+
         def refuse(*args, **kwargs):
-            raise PermissionError(13, "Permission denied", str(tmp_path / "ro"))
+            if Path(kwargs["dir"]) == tmp_path / "ro":
+                raise PermissionError(13, "Permission denied", str(tmp_path / "ro"))
+            return make_temporary(*args, **kwargs)
 
         monkeypatch.setattr("tempfile.TemporaryDirectory", refuse)  # root may write anywhere: simulate the refusal
-    monkeypatch.setattr("seggrasp.__main__.load_mesh", lambda *a: pytest.fail("work started before --out was checked"))
+    monkeypatch.setattr("seggrasp.__main__.load_mesh", lambda *a: pytest.fail("work started before it was checked"))
+    places = {"--out": str(tmp_path / "out"), "--cache-dir": str(tmp_path / "cache")} | {option: str(folder)}
     code = main(["segment", str(mesh_path), "--prompt", "handle", "--labels", str(labels_path), "--views", "2",
-                 "--image-size", "32", "--refine", "none", "--out", str(out)])
+                 "--image-size", "32", "--refine", "none", "--out", places["--out"], "--cache-dir",
+                 places["--cache-dir"]])
     assert code == 2
     err = capsys.readouterr().err
-    assert f"--out {out}" in err and "Traceback" not in err
+    assert err.startswith(f"error: {option} {str(folder)[:120]}") and len(err.strip().splitlines()) == 1, err
 
 
 @pytest.mark.parametrize("extra, message", [
