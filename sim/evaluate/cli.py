@@ -203,13 +203,13 @@ def _check_backend(args: argparse.Namespace) -> None:
         raise ValueError("--record needs the twin: the real cell cannot record picture strips (drop --record)")
     if args.engine == "ray" and args.backend == "real":
         raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
+    if args.grip_force is not None and args.backend == "real":
+        raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
 
 
 def _check_twin_settings(args: argparse.Namespace) -> None:
     if args.grip_force is None:
         return
-    if args.backend == "real":
-        raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
     low, high = GRIP_FORCE_RANGE
     if not low <= args.grip_force <= high:  # also rejects nan
         raise ValueError(f"--grip-force {args.grip_force:g} N is outside the 2F-85's range {low:g}-{high:g} N")
@@ -280,7 +280,8 @@ def _resumed(args: argparse.Namespace, recorded: RunConfig) -> RunConfig:
     if len(merged["seeds"]) > MAX_SEEDS:
         raise ValueError(f"--seeds would give the run {len(merged['seeds'])} seeds, more than {MAX_SEEDS}")
     resumed = replace(recorded, **merged, record=args.record)
-    _check_backend(argparse.Namespace(record=args.record, engine=args.engine, backend=recorded.backend))
+    _check_backend(argparse.Namespace(record=args.record, engine=args.engine, backend=recorded.backend,
+                                      grip_force=args.grip_force))
     return resumed
 
 
