@@ -204,6 +204,7 @@ def _world() -> int:
     return client
 
 
+@pytest.mark.slow
 def test_every_object_settles_on_a_table_in_pybullet(models: dict[str, ObjectModel]) -> None:
     client = _world()
     try:
@@ -410,6 +411,7 @@ def test_coacd_collision_model_is_reproduced(tmp_path: Path) -> None:
     _assert_close(regenerated, record)
 
 
+@pytest.mark.slow
 def test_cli_lists_and_renders_a_gallery(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert assets_main(["list"]) == 0
     out = capsys.readouterr().out

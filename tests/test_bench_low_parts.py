@@ -39,6 +39,7 @@ def test_the_section_cuts_across_the_part_and_marks_its_segments():
     assert segments[~on_part].reshape(-1, 2)[:, 1].min() == pytest.approx(0.0)
 
 
+@pytest.mark.slow
 def test_the_picture_of_a_twin_part_is_written_and_a_wrong_part_is_refused(tmp_path, capsys):
     assert low_parts.main(["--parts", "knife_chef:blade", "--out", str(tmp_path)]) == 0
     picture = tmp_path / "knife_chef-blade-section.png"

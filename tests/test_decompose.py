@@ -189,6 +189,7 @@ def logged_calls(log):
     return [json.loads(line) for line in open(log)] if os.path.exists(log) else []
 
 
+@pytest.mark.slow
 def test_reference_mode_runs_the_literal_paper_sweep(monkeypatch, tmp_path):
     mesh = l_shape()
     log = tmp_path / "calls.jsonl"
@@ -396,6 +397,7 @@ def _slow_at_fine_thresholds(vertices, faces, threshold, params):
     return [trimesh.Trimesh(vertices, faces).bounding_box.vertices]
 
 
+@pytest.mark.slow
 def test_a_run_over_its_time_budget_is_killed_and_the_sweep_goes_on(monkeypatch, tmp_path, caplog):
     mesh = l_shape()
     monkeypatch.setattr(workers, "run_coacd_hulls", _slow_at_fine_thresholds)

@@ -93,6 +93,7 @@ def make(name: str, weights: str, threshold: float, **kwargs):
     return OwlV2(weights, score_threshold=threshold, **kwargs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["grounding-dino", "owlv2"])
 def test_tiny_model_loads_from_disk_and_detects(name, tiny_weights, views):
     detector = make(name, tiny_weights[name], 0.0, batch_size=2)  # 3 views: one full and one partial batch
@@ -108,6 +109,7 @@ def test_tiny_model_loads_from_disk_and_detects(name, tiny_weights, views):
     assert detector.detect([], PROMPTS) == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["grounding-dino", "owlv2"])
 def test_batching_does_not_change_results(name, tiny_weights, views):
     batched = make(name, tiny_weights[name], 0.0, batch_size=3, nms_iou=None).detect(views, PROMPTS)

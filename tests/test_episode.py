@@ -52,6 +52,7 @@ def test_table_plane_passes_through_the_lowest_point() -> None:
     assert np.allclose(heights, world_z - world_z.min())
 
 
+@pytest.mark.slow
 def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, cylinder) -> None:
     records = run_episode(cell, cylinder, "oracle", targets=["side", "top"], top_k=3, seed=0)
     assert [(r.prompt, r.rank) for r in records] == [("side", 0), ("side", 1), ("side", 2), ("top", 0), ("top", 1),
@@ -71,6 +72,7 @@ def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, 
     assert all(r.failure == "" for r in side if r.success)
 
 
+@pytest.mark.slow
 def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
     cache: dict = {}
     context = EpisodeContext.from_object(cylinder, scene_seed=2)
@@ -83,6 +85,7 @@ def test_outcomes_are_reused_for_identical_grasps(cell, cylinder) -> None:
     assert [r.lift_height for r in first] == [r.lift_height for r in again]
 
 
+@pytest.mark.slow
 def test_run_s_hooks_see_the_plan_then_each_slot_before_and_its_record_after(cell, cylinder) -> None:
     """The benchmark's hooks (sim/evaluate/runner.py): a skipped slot is neither announced nor executed, and
     `moves_cell` says before a slot whether its outcome will be reused."""
@@ -100,6 +103,7 @@ def test_run_s_hooks_see_the_plan_then_each_slot_before_and_its_record_after(cel
         assert events == [("plan", "oracle"), ("before", 0, run == 0), ("record", 0, run == 1)]
 
 
+@pytest.mark.slow
 def test_coarse_episode_names_its_detector_and_executes_on_voted_faces(cell, cylinder) -> None:
     streamed = []
     records = run_episode(cell, cylinder, "coarse", DetectorSpec(preset="perfect"), targets=[" SIDE "], top_k=2,
@@ -251,6 +255,7 @@ class OutOfReachCell:
             GraspOutcome(True, False, 0.0)
 
 
+@pytest.mark.slow
 def test_an_episode_asks_its_cell_which_grasps_it_can_execute_once_per_grasp_in_a_fresh_scene(cylinder) -> None:
     mesh, labels = cylinder.mesh, cylinder.labels.face_labels
     context = EpisodeContext("cylinder", "cylinder", ["top", "side", "bottom"], scene_seed=0)
@@ -271,6 +276,7 @@ def test_an_episode_asks_its_cell_which_grasps_it_can_execute_once_per_grasp_in_
     assert cell.checked == checked + 1 and cell.checked_disturbed == disturbed  # in the scene a slot will find
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("models_scene", [True, False])
 def test_a_cell_that_checks_only_its_arm_is_reset_once_per_grasp(cylinder, models_scene) -> None:
     """The real cell's reset asks a person to place the object: it comes once per executed grasp, whatever is
@@ -300,6 +306,7 @@ def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
         segmenter.plan("oracle", np.eye(4))  # the method never sees ground truth
 
 
+@pytest.mark.slow
 def test_perceived_episode_plans_on_the_camera_mesh(cell, cylinder) -> None:
     records = run_episode(cell, cylinder, "oracle", targets=["side"], top_k=2, perceive=True,
                           workspace=cell.workspace)

@@ -93,6 +93,7 @@ def test_bad_arguments_exit_with_a_message(capsys) -> None:
     assert "unknown object" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_resume_skips_recorded_trials_and_refuses_a_different_setup(tmp_path, capsys) -> None:
     out = tmp_path / "run"
     assert main([*SMALL, "--out", str(out)]) == 0
@@ -137,6 +138,7 @@ def _segmentations(out: Path) -> dict:
     return {r["method"]: r for r in JsonLines(out / "segmentations.jsonl").read()}
 
 
+@pytest.mark.slow
 def test_votes_are_keyed_by_the_prompts_and_resume_refuses_other_prompts(small_run, tmp_path, capsys) -> None:
     """Issue 13 finding 1: votes cached for one prompt order must never be reused for another."""
     out = _copy(small_run, tmp_path)
@@ -151,6 +153,7 @@ def test_votes_are_keyed_by_the_prompts_and_resume_refuses_other_prompts(small_r
     assert _segmentations(out)["coarse"]["miou"] == pytest.approx(_segmentations(clean)["coarse"]["miou"])
 
 
+@pytest.mark.slow
 def test_record_writes_picture_strips_and_leaves_the_records_unchanged(small_run, tmp_path) -> None:
     """Issue 12: `--record 1` saves a strip of the first executed slot per method and object; the trials match a
     run without recording."""
@@ -187,6 +190,7 @@ def test_record_is_refused_without_the_twin(capsys) -> None:
     assert "--record must be at least 0" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_second_run_on_the_folder_is_refused_and_duplicates_count_once(small_run, tmp_path, capsys) -> None:
     """Issue 13 finding 2: the folder is locked while a run writes it; duplicated records are ignored."""
     out = _copy(small_run, tmp_path)
@@ -202,6 +206,7 @@ def test_a_second_run_on_the_folder_is_refused_and_duplicates_count_once(small_r
     assert summary["methods"]["coarse"]["trials"] == summary["methods"]["oracle"]["trials"] == 2
 
 
+@pytest.mark.slow
 def test_resume_keeps_the_run_s_methods_and_recomputes_a_damaged_vote_cache(small_run, tmp_path, capsys) -> None:
     """Issue 13 findings 3 and 6: a resume with fewer methods keeps the others; a truncated cache is recomputed."""
     out = _copy(small_run, tmp_path)
@@ -221,6 +226,7 @@ def test_resume_keeps_the_run_s_methods_and_recomputes_a_damaged_vote_cache(smal
     assert "cannot resume" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_killed_run_leaves_a_valid_file_that_resumes(tmp_path) -> None:
     out = tmp_path / "killed"
     args = [sys.executable, "-m", "sim.evaluate", *SMALL[:-1], "6", "--out", str(out)]

@@ -44,6 +44,7 @@ def _task(out: Path, twin=None) -> runner.ObjectTask:
     return runner.ObjectTask(OBJECT, 0, config, str(out), runner.Recorded(), parallel=True, collect=True, twin=twin)
 
 
+@pytest.mark.slow
 def test_a_task_given_the_shipped_object_reads_nothing_of_the_installed_twin(twin, tmp_path, monkeypatch) -> None:
     expected = runner.evaluate_object(_task(tmp_path / "installed"))  # reads the package's assets
     runner.close_cell()

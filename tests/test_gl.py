@@ -87,6 +87,7 @@ def test_clis_without_osmesa_print_one_sentence_and_fail(tmp_path: Path, command
     assert not (tmp_path / "out" / "trials.jsonl").exists()
 
 
+@pytest.mark.slow
 def test_the_runtime_package_is_enough_without_the_unversioned_dev_link(tmp_path: Path) -> None:
     """install.sh installs libosmesa6 only: PyOpenGL must find libOSMesa.so.8 when libOSMesa.so (-dev) is absent."""
     script = ("from seggrasp.render import camera_rig, render_views\nimport trimesh\n"

@@ -33,6 +33,7 @@ def _box_grid(lo: np.ndarray, hi: np.ndarray, step: float = 0.004) -> np.ndarray
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
+@pytest.mark.slow
 def test_enough_grasps_sorted_best_first(object_and_grasps) -> None:
     _, grasps = object_and_grasps
     assert len(grasps) >= 200
@@ -83,6 +84,7 @@ def test_fingers_and_palm_do_not_penetrate_object_or_table(object_and_grasps) ->
         assert world[:, 2].min() > 0.0, f"grasp {i} goes below the table"
 
 
+@pytest.mark.slow
 def test_same_seed_same_grasps_other_seed_differs() -> None:
     mesh = _on_table(trimesh.creation.cylinder(radius=0.025, height=0.1, sections=32))
     sampler = AntipodalSampler()
@@ -110,6 +112,7 @@ def test_flat_bar_on_the_table_is_grasped_from_above_near_the_fingertips() -> No
     assert np.all(g.poses[:, 2, 2] < -0.5)  # from above
 
 
+@pytest.mark.slow
 def test_ring_is_held_by_its_wall_or_around_its_outside_never_from_inside_the_hole() -> None:
     ring = _on_table(trimesh.creation.annulus(r_min=0.03, r_max=0.04, height=0.05, sections=64))
     g = AntipodalSampler().generate(ring, seed=1, table_plane=TABLE)
@@ -146,6 +149,7 @@ def _hammer() -> tuple[trimesh.Trimesh, np.ndarray, float]:
     return trimesh.util.concatenate([handle, head]), com, 1.1
 
 
+@pytest.mark.slow
 def test_hammer_grasp_holds_against_the_heavy_head() -> None:
     mesh, com, mass = _hammer()
     config = AntipodalConfig(friction_coefficient=MU, grip_force=100.0)
@@ -205,6 +209,7 @@ def test_a_pinch_needs_the_pads_on_the_part_not_on_an_edge() -> None:
     assert blade_grasps(AntipodalConfig(friction_coefficient=MU)) == 0
 
 
+@pytest.mark.slow
 def test_footprint_gives_the_width_the_pads_close_on() -> None:
     # a 20 mm stem under a 60 mm wide, 10 mm thick cap: pads on the stem just below the cap sweep the cap too
     stem = trimesh.creation.box((0.02, 0.02, 0.06))
@@ -233,6 +238,7 @@ def test_bad_table_plane_and_config_are_rejected() -> None:
         AntipodalConfig(friction_coefficient=0.0)
 
 
+@pytest.mark.slow
 def test_graspset_transform_and_subset() -> None:
     box = trimesh.creation.box((0.05, 0.05, 0.05))
     g = AntipodalSampler().generate(box, seed=0)
@@ -266,6 +272,7 @@ def test_a_round_handle_lying_flat_is_grasped_level_across_its_widest_section() 
 
 
 
+@pytest.mark.slow
 def test_level_grasps_do_not_pinch_the_edges_of_a_slanted_wall() -> None:
     # a 3 mm wall leaning 20 deg (a pan's flared side): pads closing level with the table would touch only its
     # edges (a point each), so level poses are kept only where the surface faces the pads

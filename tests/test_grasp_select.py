@@ -21,6 +21,7 @@ def hammer() -> tuple[trimesh.Trimesh, np.ndarray]:
     return mesh, labels
 
 
+@pytest.mark.slow
 def test_both_contacts_decide_the_part(hammer) -> None:
     mesh, labels = hammer
     grasps = AntipodalSampler().generate(mesh, seed=0)
@@ -47,6 +48,7 @@ def test_straddling_grasp_is_unassigned(hammer) -> None:
     assert assign_parts(straddle, mesh, unknown).tolist() == [-1]
 
 
+@pytest.mark.slow
 def test_top_k_per_prompt_best_first(hammer) -> None:
     mesh, labels = hammer
     grasps = AntipodalSampler().generate(mesh, seed=1)
@@ -90,6 +92,7 @@ def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighb
     np.testing.assert_allclose(surface.pad_means(far, (labels == 0).astype(float)[:, None])[:, :, 0], 1.0)
 
 
+@pytest.mark.slow
 def test_sampled_grasps_keep_their_pads_on_their_own_part(hammer) -> None:
     mesh, labels = hammer
     grasps = AntipodalSampler().generate(mesh, seed=1)

@@ -102,6 +102,7 @@ def test_each_pad_squeezes_with_the_grip_force_setting(force):
     assert _squeeze(force) == pytest.approx(2 * force, rel=0.05)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("mass", [0.02, 0.5])
 @pytest.mark.parametrize("force", [GRIP_FORCE_RANGE[0], GRIP_FORCE_RANGE[1]])
 def test_the_pads_still_squeeze_with_the_grip_force_at_the_end_of_an_arm_lift(tmp_path, mass, force):

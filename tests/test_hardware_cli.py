@@ -175,6 +175,7 @@ def test_calibrate_refuses_oversized_boards_and_tours(tmp_path, capsys):
     assert "3-50 inner corners a side" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_dry_run_check_without_cameras_names_them_in_one_sentence(capsys):
     assert main(["check", str(EXAMPLE_CONFIG), "--connect", "--dry-run"]) == 1
     err = capsys.readouterr().err.splitlines()[-1]

@@ -20,6 +20,9 @@ from sim.env import SegGraspEnv
 from sim.evaluate import JsonLines, RunConfig, run_object
 from sim.primitives import primitive_object
 
+#: Every test here runs whole episodes: none is in the fast loop.
+pytestmark = pytest.mark.slow
+
 pytest.importorskip("seggrasp.perception")
 
 RADIUS, HEIGHT = 0.03, 0.11

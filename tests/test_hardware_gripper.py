@@ -198,6 +198,7 @@ def test_a_huge_reply_is_refused_quickly_and_the_link_resynchronised(cell_config
         assert gripper.get("POS") == 3 and gripper.get("STA") == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("newline", [False, True], ids=["bare-replies", "newline-replies"])
 def test_replies_split_across_packets_are_reassembled(cell_config, newline):
     with FakeRobotiqServer(newline=newline) as server:

@@ -175,6 +175,7 @@ def _segment_summary(mug, tmp_path: Path, prompts: list[str], *extra: str) -> di
     return json.loads((tmp_path / "out" / "summary.json").read_text())
 
 
+@pytest.mark.slow
 def test_many_prompts_naming_no_part_do_not_wreck_the_present_parts(mug, tmp_path: Path) -> None:
     """Issue 34: 2 real + 98 absent prompts took the refined mIoU to 0.002 while the coarse votes gave 0.355. The
     typical simulated detector boxes absent prompts too (whole-object and stray boxes), so they are found."""
@@ -186,6 +187,7 @@ def test_many_prompts_naming_no_part_do_not_wreck_the_present_parts(mug, tmp_pat
     assert set(evaluation["final_area"]["part_iou"]) == {"handle", "body"}  # the mIoU is over present parts
 
 
+@pytest.mark.slow
 def test_prompts_the_detector_never_boxes_are_reported_not_found(mug, tmp_path: Path, capsys) -> None:
     alone = _segment_summary(mug, tmp_path, ["handle", "body"], "--detector", "perfect")
     summary = _segment_summary(mug, tmp_path, ["handle", "body", "lid", "spout"], "--detector", "perfect")
@@ -382,6 +384,7 @@ def _segment_in_a_network_namespace(argv: list[str], tmp_path: Path, timeout: fl
     return done.returncode, done.stderr, time.perf_counter() - started
 
 
+@pytest.mark.slow
 def test_hub_id_without_network_is_refused_at_once(mug, tmp_path: Path) -> None:
     """Issue 34: a hub id with no network tried the hub for about 50 s before failing."""
     code, err, seconds = _segment_in_a_network_namespace(
@@ -392,6 +395,7 @@ def test_hub_id_without_network_is_refused_at_once(mug, tmp_path: Path) -> None:
     assert len(lines) == 1 and "nothing can be downloaded (huggingface.co:443 cannot be reached" in lines[0]
 
 
+@pytest.mark.slow
 def test_local_weights_folder_works_without_network(mug, tmp_path: Path) -> None:
     from tiny_hf_models import build_tiny_owlv2
 
@@ -403,6 +407,7 @@ def test_local_weights_folder_works_without_network(mug, tmp_path: Path) -> None
     assert json.loads((tmp_path / "out" / "summary.json").read_text())["detector"].lower().startswith("owl")
 
 
+@pytest.mark.slow
 def test_segment_reads_every_twin_mesh_file_warm_from_the_bundled_decompositions(monkeypatch, tmp_path: Path) -> None:
     """`python -m seggrasp segment assets/objects/<id>/mesh.obj` decomposes the repaired working mesh; for the 13
     twin objects with degenerate or duplicate faces the bundle held only the raw mesh's runs (CoACD ran cold)."""

@@ -108,6 +108,7 @@ def test_an_item_given_twice_is_refused(option, value, tmp_path, capsys) -> None
     assert not (tmp_path / "out" / "trials.jsonl").exists()
 
 
+@pytest.mark.slow
 def test_resume_alone_keeps_the_recorded_objects_methods_and_settings(small_run, tmp_path, capsys) -> None:
     out = _copy(small_run, tmp_path)
     recorded = json.loads((out / "run.json").read_text())
@@ -120,6 +121,7 @@ def test_resume_alone_keeps_the_recorded_objects_methods_and_settings(small_run,
     assert "--top-k 2 contradicts the recorded run's top_k 1" in _error(capsys.readouterr().err)
 
 
+@pytest.mark.slow
 def test_a_fresh_run_refuses_a_folder_holding_a_killed_run_s_segmentation(small_run, tmp_path, capsys) -> None:
     """Killed after it wrote its votes and segmentation, before any trial: a fresh run with the prompts reordered
     would have reused the segmentation of the other order."""
@@ -136,6 +138,7 @@ def test_records_without_run_json_are_not_reused_by_another_run(small_run, tmp_p
     assert "but no run.json saying which run made them" in _error(capsys.readouterr().err)
 
 
+@pytest.mark.slow
 def test_records_of_another_run_are_set_aside_never_counted(small_run, tmp_path, capsys) -> None:
     out = _copy(small_run, tmp_path)
     trials = _trials(out)
@@ -186,6 +189,7 @@ def test_a_strip_of_a_lifted_wrong_part_grasp_says_failed() -> None:
     (["--seeds", "0-200000"], "gives more than 1000 seeds"),
     (["--top-k", "100000"], "--top-k must be 1-100"),
 ])
+@pytest.mark.slow
 def test_seeds_and_top_k_are_bounded_at_once(args, message, tmp_path) -> None:
     started = time.monotonic()
     result = _evaluate(*ORACLE[:4], *args, "--out", str(tmp_path / "out"))
@@ -202,6 +206,7 @@ def test_the_seed_bound_is_exact() -> None:
         parse_seeds(f"5,0-{MAX_SEEDS - 1}")
 
 
+@pytest.mark.slow
 def test_a_ray_address_with_nothing_there_ends_in_one_sentence(tmp_path) -> None:
     started = time.monotonic()
     result = _evaluate(*ORACLE, "--engine", "ray", "--address", "127.0.0.1:1", "--out", str(tmp_path / "out"))
@@ -221,6 +226,7 @@ def test_a_ray_address_that_accepts_and_never_answers_is_refused_within_the_dead
     assert time.monotonic() - started < 5
 
 
+@pytest.mark.slow
 def test_a_ray_head_passes_the_probe() -> None:
     import ray
 
@@ -318,6 +324,7 @@ def test_a_full_disk_stops_the_run_in_one_sentence_and_resume_completes_it(tmp_p
     assert trials[:len(written)] == written and len({trial_key(r) for r in trials}) == len(trials) == 2
 
 
+@pytest.mark.slow
 @AS_ROOT
 @pytest.mark.parametrize("read_only", ["the folder", "trials.jsonl"])
 def test_a_read_only_output_is_one_sentence(read_only, small_run, tmp_path) -> None:

@@ -115,6 +115,7 @@ def _one_line_error(stderr: str) -> str:
     return last
 
 
+@pytest.mark.slow
 @needs_netns
 @pytest.mark.parametrize("mode", ["silent", "garbage", "trickle"])
 def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_path, mode):
@@ -131,6 +132,7 @@ def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_pat
     assert result["left"] == [], result["left"]
 
 
+@pytest.mark.slow
 @needs_netns
 def test_ctrl_c_while_connecting_ends_with_one_line(tmp_path):
     # seconds counted from the SIGINT

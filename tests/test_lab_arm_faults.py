@@ -8,9 +8,14 @@ Every scenario prints one JSON line last; the tests check what it reports and ho
 
 from __future__ import annotations
 
+import re
+
 import pytest
 
 from lab_harness import run_in_lab
+
+#: Every test here drives the emulated cell through the real ur_rtde: none is in the fast loop.
+pytestmark = pytest.mark.slow
 
 #: Shared by every scenario: the emulated cell's config, a connected arm, and helpers that report outcomes.
 PRELUDE = """
@@ -216,14 +221,16 @@ print(json.dumps({"outcome": outcome, "seconds": seconds, "moving": state["movin
 """
 
 
+# A dropped link is seen either as the closed socket or, first on a loaded machine, as the state stream stalling
 @pytest.mark.parametrize("fault, stage, error, named", [
-    ("drop_link", 2, "ConnectionLostError", "grasp aborted while approaching: lost the RTDE connection"),
+    ("drop_link", 2, "ConnectionLostError",
+     r"grasp aborted while approaching: (lost the RTDE connection|.* has sent no new state for)"),
     ("protective_stop", 3, "RobotStoppedError", "grasp aborted while lifting: the robot is in a protective stop"),
     ("emergency_stop", 3, "RobotStoppedError", "grasp aborted while lifting: the robot is emergency stopped"),
 ])
 def test_execute_ends_in_a_named_error_with_the_arm_at_rest(fault, stage, error, named):
     out = lab(f"STAGE, FAULT = {stage}, {fault!r}\n" + EXECUTE)
-    assert out["outcome"]["error"] == error and named in out["outcome"]["message"], out
+    assert out["outcome"]["error"] == error and re.search(named, out["outcome"]["message"]), out
     assert out["moving"] is False and out["seconds"] < 30.0
 
 

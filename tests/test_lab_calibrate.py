@@ -36,6 +36,7 @@ def extrinsic_error(T: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
             float(np.degrees(Rotation.from_matrix(T[:3, :3].T @ T_true[:3, :3]).magnitude())))
 
 
+@pytest.mark.slow
 def test_the_board_on_the_flange_is_found_by_opencv_at_every_pose_of_both_tours():
     """The plate's geometry: OpenCV finds its inner corners in the twin's renders at every pose of the shipped
     tours, where the board really is (within 2 mm, 1 degree), and the shipped tours are `tour`'s."""

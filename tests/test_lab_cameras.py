@@ -162,6 +162,7 @@ def test_a_busy_machine_loses_no_frame_set_of_a_recording(config, ideal, tmp_pat
         camera.stop()
 
 
+@pytest.mark.slow
 def test_a_stream_that_stops_raises_a_named_error_within_the_deadline(config, ideal, tmp_path):
     twin, serial, name = ideal[0], config.cameras[0].serial, config.cameras[0].name
     path = write_recordings({serial: twin}, tmp_path)[serial]
@@ -193,6 +194,7 @@ def test_a_stream_that_stops_raises_a_named_error_within_the_deadline(config, id
         camera.stop()
 
 
+@pytest.mark.slow
 def test_offline_replay_of_a_recorded_scene_through_perception(config, tmp_path_factory, tmp_path, capsys):
     """The feature: `python -m hardware replay CONFIG` with cameras that name recordings opens them without the
     robot (a dry-run cell), captures and perceives as a live cell would. The mesh matches what perception makes of

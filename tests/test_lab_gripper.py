@@ -92,6 +92,7 @@ def test_close_and_open_on_nothing(cell_config, server, fingers):
     assert middle.width == pytest.approx(0.04, abs=0.0004) and fingers.width() == pytest.approx(0.04, abs=0.0004)
 
 
+@pytest.mark.slow
 def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers, channel):
     gripper = active(cell_config, server)
     gripper.open(speed=FAST)
@@ -108,6 +109,7 @@ def test_close_on_an_object_then_the_object_is_lost(cell_config, server, fingers
     assert gripper.state().object_status == 3 and gripper.width() == pytest.approx(0.0)
 
 
+@pytest.mark.slow
 def test_full_stroke_at_the_slowest_speed_ends_within_its_travel_time(cell_config, server):
     # F10: the 2F-85's full stroke at 20 mm/s takes 4.25 s. The client used one fixed deadline (gripper.timeout,
     # here 1 s) per motion, whatever the speed and stroke: this close failed "did not complete within 1.0 s"
@@ -157,6 +159,7 @@ def test_an_emergency_stop_mid_motion_is_named(cell_config, server):
         gripper.close(speed=SLOW)
 
 
+@pytest.mark.slow
 def test_fault_13_mid_grasp_is_named_and_cleared(cell_config, server, channel):
     gripper = active(cell_config, server)
     gripper.open(speed=FAST)
@@ -240,6 +243,7 @@ def test_moving_before_activation_is_fault_7(cell_config, server, fingers):
     assert fingers.width() == pytest.approx(cell_config.gripper.stroke)  # nothing moved
 
 
+@pytest.mark.slow
 def test_automatic_release_opens_the_fingers_and_reports_15(cell_config, server, fingers):
     gripper = active(cell_config, server)
     gripper.move_to_width(0.080, speed=FAST)

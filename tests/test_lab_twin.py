@@ -114,6 +114,7 @@ def test_inverse_kinematics(mug):
     assert arm.joints_within_limits(HOME_Q_WIRE) and not arm.joints_within_limits([0, 0, 4.0, 0, 0, 0])
 
 
+@pytest.mark.slow
 def test_fingers_stop_on_the_object_hold_it_through_the_lift_and_lose_it():
     scene = TwinScene("bottle_water", 0, None)
     try:
@@ -164,6 +165,7 @@ def inodes(paths: dict) -> dict:
             ((serial, Path(path).stat()) for serial, path in paths.items())}
 
 
+@pytest.mark.slow
 def test_each_placement_rewrites_the_cameras_recordings(tmp_path):
     scene = TwinScene("hammer_claw", 1, tmp_path)
     try:

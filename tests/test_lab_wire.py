@@ -51,6 +51,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("generation, polyscope, rate", [("e-series", "5.11.1", 500.0), ("cb3", "3.15.7", 125.0)])
 def test_receive_interface_streams_the_arm_state_at_the_generation_rate(generation, polyscope, rate):
     run = run_in_lab(RECEIVE, ("--kinematic", "--controller", generation, "--polyscope", polyscope), timeout=90)
@@ -128,6 +129,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_control_interface_moves_with_async_progress_and_stops_mid_motion():
     run = run_in_lab(CONTROL, timeout=90)
     assert run.returncode == 0, run.stderr
@@ -187,6 +189,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_protective_stop_stops_the_program_and_urarm_raises():
     run = run_in_lab(PROTECTIVE_STOP, ("--kinematic", "--unlock-delay", "0"), timeout=90)
     assert run.returncode == 0, run.stderr
@@ -215,6 +218,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("generation, polyscope, present", [("e-series", "5.9.4", False), ("cb3", "3.14.3", False),
                                                             ("e-series", "5.10.0", True)])
 def test_ik_check_is_answered_only_where_the_uploaded_script_has_it(generation, polyscope, present):
@@ -249,6 +253,7 @@ print(json.dumps({"taken": [taken.returncode, taken.stderr], "free": [free.retur
 """
 
 
+@pytest.mark.slow
 def test_run_without_a_namespace_serves_on_the_host_loopback_or_names_the_taken_port():
     run = run_command([*netns.unshare_command(), sys.executable, "-c", FALLBACK], timeout=120)
     assert run.returncode == 0, run.stderr

@@ -194,6 +194,7 @@ def test_external_loader_rejects_what_cannot_be_made_physical(tmp_path: Path) ->
         load_external_object(tmp_path / "missing.obj", cache_dir=tmp_path)
 
 
+@pytest.mark.slow
 def test_ycb_scans_load_through_the_external_loader(ycb_dir: Path, tmp_path: Path) -> None:
     # the mug scan has non-manifold edges (not watertight): its volume still comes from the closed surface
     from seggrasp.mesh import load_mesh

@@ -101,6 +101,7 @@ def test_panda_ik_reaches_the_workspace_within_the_ur5_tolerances(tmp_path):
         assert reached >= 18
 
 
+@pytest.mark.slow
 def test_no_grasp_wider_than_the_franka_stroke_is_planned(tmp_path):
     """A 78 mm block: the 2F-85 (85 mm) grasps across it, the Franka Hand (80 mm, less the sampler's margin)
     never does."""
@@ -119,6 +120,7 @@ def test_no_grasp_wider_than_the_franka_stroke_is_planned(tmp_path):
     assert len(grasps) and grasps.widths.max() <= FRANKA_HAND.stroke
 
 
+@pytest.mark.slow
 def test_the_gym_env_with_the_panda_passes_the_checker(tmp_path):
     objects = [primitive_object("box", (0.05, 0.05, 0.08), tmp_path, object_id="box")]
     env = SegGraspEnv(objects, robot="panda", render_mode="rgb_array", image_size=(160, 120), n_cameras=2)
@@ -129,6 +131,7 @@ def test_the_gym_env_with_the_panda_passes_the_checker(tmp_path):
         env.close()
 
 
+@pytest.mark.slow
 def test_the_panda_lifts_a_twin_object():
     hammer = load_asset("hammer_claw")
     with SimCell([hammer], robot="panda", seed=0, **SMALL) as cell:

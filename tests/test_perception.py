@@ -114,6 +114,7 @@ def mug_scene() -> tuple[trimesh.Trimesh, list[Frame]]:
     return truth, render_frames(truth, camera_poses(), seed=0)
 
 
+@pytest.mark.slow
 def test_perceived_mug_matches_ground_truth(mug_scene):
     truth, frames = mug_scene
     mesh = perceive_object(frames, WORKSPACE, seed=0)
@@ -126,6 +127,7 @@ def test_perceived_mug_matches_ground_truth(mug_scene):
     assert abs(mesh.volume - truth.volume) / truth.volume < 0.1
 
 
+@pytest.mark.slow
 def test_fused_cloud_is_the_object_without_table(mug_scene):
     truth, frames = mug_scene
     points = fuse_point_cloud(frames, WORKSPACE, seed=0)
@@ -137,6 +139,7 @@ def test_fused_cloud_is_the_object_without_table(mug_scene):
     np.testing.assert_array_equal(points, fuse_point_cloud(frames, WORKSPACE, seed=0))  # deterministic
 
 
+@pytest.mark.slow
 def test_view_registration_repairs_calibration_drift(mug_scene):
     truth, frames = mug_scene
     drift = np.eye(4)
@@ -167,6 +170,7 @@ def test_icp_recovers_a_known_offset():
     np.testing.assert_allclose(T @ offset, np.eye(4), atol=2e-3)
 
 
+@pytest.mark.slow
 def test_reconstruct_from_points_alone_orients_normals_itself():
     """Without normals or frames: PCA normals, spanning-tree orientation, flood-fill inside/outside."""
     truth = place(trimesh.creation.box(extents=(0.08, 0.05, 0.06)), yaw=0.3)
@@ -188,6 +192,7 @@ def test_reconstruct_from_points_alone_orients_normals_itself():
     assert surface_distances(coarse, truth)[0] < 0.003
 
 
+@pytest.mark.slow
 def test_things_above_the_table_are_not_the_object(mug_scene):
     """A second body hanging above the object (like a gripper) is dropped: the object rests on the table."""
     truth, _ = mug_scene
@@ -218,6 +223,7 @@ def test_bad_input_is_rejected(mug_scene):
         PerceptionConfig(voxel_size=0.0)
 
 
+@pytest.mark.slow
 def test_perceives_the_twin_mug_from_the_simulated_cameras():
     """The exact code the robot runs, on frames of the simulated cell's two virtual D435s (one side of the object
     only, so the unseen back is filled up to the visual hull: looser bounds than with cameras all around)."""

@@ -62,6 +62,7 @@ def _interior(face_ids: np.ndarray) -> np.ndarray:
     )
 
 
+@pytest.mark.slow
 def test_face_ids_agree_with_ray_casting(ring: trimesh.Trimesh, ring_views) -> None:
     for view in ring_views:
         reference = _ray_cast_face_ids(ring, view)
@@ -175,6 +176,7 @@ def test_renderer_reuses_its_shader_program() -> None:
         renderer.close()
 
 
+@pytest.mark.slow
 def test_face_ids_exact_on_a_real_scan(ycb_dir) -> None:
     """A YCB scan (16k faces, most smaller than a pixel here) renders to face ids that ray casting confirms."""
     from seggrasp.mesh import load_mesh

@@ -239,6 +239,7 @@ def test_cli_unusable_out_is_refused_before_any_work(hammer_files, tmp_path: Pat
     (["--views", "64", "--image-size", "2048"], "limit is 32 Mpx"),
     (["--coacd-timeout", "0"], "--coacd-timeout"),
 ])
+@pytest.mark.slow
 def test_cli_absurd_work_sizes_are_refused(hammer_files, tmp_path: Path, capsys, extra, message) -> None:
     mesh_path, labels_path, _ = hammer_files
     with pytest.raises(SystemExit) as exited:
@@ -280,6 +281,7 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT", "SIGKILL"])
 def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) -> None:

@@ -118,6 +118,7 @@ def test_a_grasp_whose_motion_would_hit_the_object_is_refused_by_check_reach_as_
         assert cell.check_reach(top_down_grasp(T_world_obj, 0.28), 0.04) == ""  # from above the arm gets there
 
 
+@pytest.mark.slow
 def test_same_seed_same_scene_frames_and_outcome(box):
     results = []
     for _ in range(2):
@@ -152,6 +153,7 @@ def test_arm_configuration_through_the_table_is_refused(box):
         assert "table" in reason and "waypoint 2" in reason
 
 
+@pytest.mark.slow
 def test_twin_objects_rest_stably_in_the_cell():
     from seggrasp.objects import load_asset_set
 

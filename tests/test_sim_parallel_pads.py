@@ -50,6 +50,7 @@ def shaft_grasp(T_world_obj: np.ndarray) -> np.ndarray:
     return T_world_obj @ T_obj_grasp
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene_seed", [51294, 7])
 def test_a_screwdriver_shaft_squeezed_level_is_lifted_without_rolling(stubby, scene_seed):
     # a 57 g screwdriver has no torque about its own axis; with splayed pads its shaft was squeezed towards the
@@ -80,6 +81,7 @@ def test_a_run_resumes_only_on_the_twin_gripper_it_started_with(tmp_path):
         prepare_out(tmp_path, config, resume=True)
 
 
+@pytest.mark.slow
 def test_a_low_bar_lying_flat_is_pinched_with_the_fingertips_and_lifted(tmp_path):
     # a 10 mm bar lying flat (a scissors or toothbrush handle): the sampler's only grasps pinch it with the
     # fingertips 1.5 mm above the table; the twin lets them that close and the pads hold it
