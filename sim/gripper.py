@@ -83,7 +83,48 @@ class GripperSettings:
                                self.follower_force, hand)
 
 
-class Robotiq2F85:
+class SlideDrive:
+    """What the twin's parallel hands share: once the fingers stall on an object, the slides push with the grip
+    force. A subclass drives its fingers in `_drive_fingers` and has `world`, `body`, `slides`, `settings`,
+    `max_travel`, `travel()` and `command_close()`."""
+
+    def squeeze(self) -> None:
+        """From the next physics step until the next `set_travel`, push both slides closed with the grip force, as
+        a hand's motor does once its fingers stall on an object.
+
+        A velocity motor with the grip force as its limit reaches that force only when the solver converges: it
+        gains at most a carriage's mass times the closing speed per iteration, and a light object between the pads
+        passes on its own mass times that. At 100-300 iterations the 2F-85's pads squeezed 30-100 N of its full
+        force, and light objects crept out of the fingers (`bench/bench_replay.py`). The force itself is exact every
+        step."""
+        self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
+                                                    targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])
+        self._slide_drive = "squeezing"
+
+    def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
+        """Close until both fingers stall (contact: from then on they `squeeze`) or the hand is shut; returns the
+        number of physics steps."""
+        self.command_close()
+        history: list[tuple[float, float]] = []
+        window = self.settings.stall_steps
+        shut = self.max_travel - 0.0005
+        for step in range(1, max_steps + 1):
+            if on_step is not None:
+                on_step()
+            self.world.step()
+            travel = self.travel()
+            if min(travel) >= shut:
+                return step
+            history.append(travel)
+            if step > 10 and all(
+                abs(now - then) < self.settings.stall_travel for now, then in zip(history[-1], history[-1 - window])
+            ):
+                self.squeeze()
+                return step
+        return max_steps
+
+
+class Robotiq2F85(SlideDrive):
     """Drives the 2F-85 joints of a body (the floating gripper or the arm with the gripper on its flange) loaded
     from the `simulated_urdf` of `description`."""
 
@@ -246,37 +287,3 @@ class Robotiq2F85:
         """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
         at the closing speed with the grip force as the force limit (`_drive_fingers`)."""
         self._slide_drive = "closing"
-
-    def squeeze(self) -> None:
-        """From the next physics step until the next `set_travel`, push both slides closed with the grip force, as
-        the 2F-85's motor does once its fingers stall on an object.
-
-        A velocity motor with the grip force as its limit reaches that force only when the solver converges: it
-        gains at most a carriage's mass times the closing speed per iteration, and a light object between the pads
-        passes on its own mass times that. At 100-300 iterations the pads squeezed 30-100 N of the 2F-85's full force, and
-        light objects crept out of the fingers (`bench/bench_replay.py`). The force itself is exact every step."""
-        self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
-                                                    targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])
-        self._slide_drive = "squeezing"
-
-    def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
-        """Close until both fingers stall (contact: from then on they `squeeze`) or the gripper is shut; returns the
-        number of physics steps."""
-        self.command_close()
-        history: list[tuple[float, float]] = []
-        window = self.settings.stall_steps
-        shut = self.max_travel - 0.0005
-        for step in range(1, max_steps + 1):
-            if on_step is not None:
-                on_step()
-            self.world.step()
-            travel = self.travel()
-            if min(travel) >= shut:
-                return step
-            history.append(travel)
-            if step > 10 and all(
-                abs(now - then) < self.settings.stall_travel for now, then in zip(history[-1], history[-1 - window])
-            ):
-                self.squeeze()
-                return step
-        return max_steps

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 import pybullet
 
-from sim.gripper import CENTRING_GAIN, COUPLING_ERP, COUPLING_FORCE, PAD_FRICTION, PAD_ROLLING_FRICTION, GripperSettings
+from sim.gripper import (CENTRING_GAIN, COUPLING_ERP, COUPLING_FORCE, PAD_FRICTION, PAD_ROLLING_FRICTION,
+                         GripperSettings, SlideDrive)
 from sim.gripper_urdf import CARRIAGE_MASS
 from sim.world import World
 
@@ -28,7 +29,7 @@ FINGER_LINKS = ("panda_leftfinger", "panda_rightfinger")
 HAND_LINK = "panda_hand"
 
 
-class FrankaHandDrive:
+class FrankaHandDrive(SlideDrive):
     """Drives the Franka Hand's fingers on a body loaded from `sim.panda.panda_urdf` (module docstring); the same
     interface as `sim.gripper.Robotiq2F85` for the grasp primitive and the cell. `pad_centre_z` is the pads' centre
     above the hand link along its z (from the finger mesh, `sim.panda.pad_centre_height`)."""
@@ -143,32 +144,3 @@ class FrankaHandDrive:
         """From the next physics step until the next `set_travel`, close at the closing speed with the grip force
         as the force limit."""
         self._slide_drive = "closing"
-
-    def squeeze(self) -> None:
-        """From the next physics step until the next `set_travel`, push both fingers closed with the grip force
-        (the Franka Hand's grasp holds its force; why a velocity motor is not enough: `Robotiq2F85.squeeze`)."""
-        self.world.client.setJointMotorControlArray(self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
-                                                    targetVelocities=[0.0, 0.0], forces=[0.0, 0.0])
-        self._slide_drive = "squeezing"
-
-    def close_until_stall(self, on_step=None, max_steps: int = 240) -> int:
-        """Close until both fingers stall (contact: from then on they `squeeze`) or the hand is shut; returns the
-        number of physics steps (the Franka Hand closes its stroke at its closing speed in 0.8 s, 192 steps)."""
-        self.command_close()
-        history: list[tuple[float, float]] = []
-        window = self.settings.stall_steps
-        shut = self.max_travel - 0.0005
-        for step in range(1, max_steps + 1):
-            if on_step is not None:
-                on_step()
-            self.world.step()
-            travel = self.travel()
-            if min(travel) >= shut:
-                return step
-            history.append(travel)
-            if step > 10 and all(
-                abs(now - then) < self.settings.stall_travel for now, then in zip(history[-1], history[-1 - window])
-            ):
-                self.squeeze()
-                return step
-        return max_steps
