@@ -125,7 +125,7 @@ def local_files_only(source: str) -> bool:
 
 def load_pretrained(loader: Callable[[str], T], source: str, model: str, example_hub_id: str, part: str) -> T:
     """Call `loader(source)` (a `from_pretrained`), turning missing-file errors into `WeightsNotFoundError`."""
-    offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in {"1", "true", "yes", "on"}
+    offline = os.environ.get("HF_HUB_OFFLINE", "").strip().lower() in _OFFLINE_VALUES
     try:
         return loader(source)
     except (OSError, ValueError) as exc:
