@@ -38,14 +38,9 @@ _UR_ALPHA = np.array([np.pi / 2, 0.0, 0.0, np.pi / 2, -np.pi / 2, 0.0])
 
 def forward_kinematics(model: str, q: np.ndarray) -> np.ndarray:
     """T_base_flange from the nominal DH parameters (the controller's calibrated kinematics differ by ~1 mm)."""
-    arm = ARM_MODELS[model]
     T = np.eye(4)
-    for theta, di, ai, alpha in zip(np.asarray(q, dtype=np.float64), arm.d, arm.a, _UR_ALPHA):
-        ct, st, ca, sa = np.cos(theta), np.sin(theta), np.cos(alpha), np.sin(alpha)
-        T = T @ np.array([[ct, -st * ca, st * sa, ai * ct],
-                          [st, ct * ca, -ct * sa, ai * st],
-                          [0.0, sa, ca, di],
-                          [0.0, 0.0, 0.0, 1.0]])
+    for i, theta in enumerate(np.asarray(q, dtype=np.float64)):
+        T = T @ _dh_link(model, i, theta)
     return T
 
 
