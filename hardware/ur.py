@@ -79,6 +79,9 @@ SAFETY_MODES = {1: "normal", 2: "reduced", 3: "protective stop", 4: "recovery", 
 #: The first PolyScope version whose controller answers `getInverseKinematicsHasSolution`, per major version (CB3,
 #: e-Series); below it ur_rtde strips the query from its script and the answer is an arbitrary register (F4).
 IK_QUERY_SINCE = {3: (3, 15), 5: (5, 10)}
+#: Largest magnitudes a sane state reports: joints turn +-360 deg; a pose within metres, a rotation vector.
+_STATE_BOUNDS = {"getActualQ": np.full(6, 2 * np.pi + 0.1),
+                 "getActualTCPPose": np.r_[[5.0] * 3, [np.pi + 1e-6] * 3]}
 
 
 def ur_pose_from_matrix(T: np.ndarray) -> list[float]:
@@ -479,8 +482,7 @@ class URArm:
         values = np.asarray(self._call(self._receive, getter), dtype=np.float64)
         if values.shape != (6,):
             raise ConnectionLostError(f"the UR at {self.config.ip} has sent no {what} (got {values.tolist()})")
-        bound = np.full(6, 2 * np.pi + 0.1) if getter == "getActualQ" else np.r_[[5.0] * 3, [np.pi + 1e-6] * 3]
-        if not np.all(np.abs(values) <= bound):  # joints turn +-360 deg; a pose within metres, a rotation vector
+        if not np.all(np.abs(values) <= _STATE_BOUNDS[getter]):
             self._garbage(f"{what} {values.tolist()}")
         return values
 
