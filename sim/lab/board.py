@@ -69,12 +69,16 @@ class CalibrationBoard:
         return (self.columns + 3) * self.square, (self.rows + 3) * self.square
 
     @property
+    def centre(self) -> np.ndarray:
+        """The centre of the grid of inner corners in the board frame (m)."""
+        return np.array([(self.columns - 1) * self.square / 2, (self.rows - 1) * self.square / 2, 0.0])
+
+    @property
     def T_flange_board(self) -> np.ndarray:
         """The board frame in the flange frame (module docstring)."""
         T = np.eye(4)
         T[:3, :3] = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # x = fx, y = -fz, z = fy
-        centre = np.array([(self.columns - 1) * self.square / 2, (self.rows - 1) * self.square / 2, 0.0])
-        T[:3, 3] = np.array([0.0, -BOARD_STANDOFF, TCP_DEPTH]) - T[:3, :3] @ centre
+        T[:3, 3] = np.array([0.0, -BOARD_STANDOFF, TCP_DEPTH]) - T[:3, :3] @ self.centre
         return T
 
     def squares(self) -> list[tuple[float, float]]:
@@ -90,7 +94,7 @@ class BoardBodies:
     def __init__(self, client, board: CalibrationBoard) -> None:
         self.client, self.board = client, board
         width, height = board.size
-        centre = ((board.columns - 1) * board.square / 2, (board.rows - 1) * board.square / 2)
+        centre = board.centre[:2]
         plate = client.createVisualShape(pybullet.GEOM_BOX, halfExtents=[width / 2, height / 2, PLATE_THICKNESS / 2],
                                          rgbaColor=[1.0, 1.0, 1.0, 1.0], specularColor=[0.0, 0.0, 0.0])
         black = client.createVisualShape(pybullet.GEOM_BOX,
@@ -132,13 +136,10 @@ def tour(T_world_cam: np.ndarray, board: CalibrationBoard, distance: float = 0.6
     a = np.arctan2(eye[1] - centre[1], eye[0] - centre[0])  # the camera's azimuth seen from the board
     R0 = np.column_stack([[np.sin(a), -np.cos(a), 0.0], [-np.cos(a), -np.sin(a), 0.0], [0.0, 0.0, -1.0]])
     T_flange_board = board.T_flange_board
+    grid_centre = T_flange_board[:3, :3] @ board.centre + T_flange_board[:3, 3]  # in the flange frame
     poses = []
     for tilt, side, turn, offset in TOUR:
         R = R0 @ Rotation.from_euler("xyz", [tilt, side, turn], degrees=True).as_matrix()
-        # the grid's centre, in the flange frame, is where the board's own centre lands
-        grid_centre = T_flange_board[:3, :3] @ np.array([(board.columns - 1) * board.square / 2,
-                                                          (board.rows - 1) * board.square / 2, 0.0]) \
-            + T_flange_board[:3, 3]
         T = np.eye(4)
         T[:3, :3] = R
         flange = centre + np.asarray(offset) - R @ grid_centre
