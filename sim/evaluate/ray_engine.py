@@ -281,11 +281,9 @@ def _descendants(pid: int) -> dict[int, str]:
     """{pid: start time} of the processes descending from `pid` (from /proc; empty where there is none)."""
     parents = {}
     for entry in Path("/proc").glob("[0-9]*"):
-        try:
-            fields = (entry / "stat").read_text().rpartition(")")[2].split()
-        except OSError:
-            continue
-        parents[int(entry.name)] = (int(fields[1]), fields[19])
+        fields = _stat_fields(entry)
+        if fields is not None:
+            parents[int(entry.name)] = (int(fields[1]), fields[19])
     found, frontier = {}, [pid]
     while frontier:
         parent = frontier.pop()
@@ -300,13 +298,18 @@ def _running(processes: dict[int, str]) -> list[int]:
     """Those of `processes` ({pid: start time}) still running (the same process: same start time, not a zombie)."""
     running = []
     for pid, start in processes.items():
-        try:
-            fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-        except OSError:
-            continue
-        if fields[19] == start and fields[0] != "Z":
+        fields = _stat_fields(Path(f"/proc/{pid}"))
+        if fields is not None and fields[19] == start and fields[0] != "Z":
             running.append(pid)
     return running
+
+
+def _stat_fields(entry: Path) -> list[str] | None:
+    """The fields of /proc/PID/stat after the command name (state first), None when the process is gone."""
+    try:
+        return (entry / "stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return None
 
 
 def _stop(trace: Trace) -> None:
