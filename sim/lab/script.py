@@ -21,7 +21,8 @@ SCRIPT_PORT = 30003
 
 #: ur_rtde's command numbers (its RobotCommand::Type) that this controller answers.
 COMMAND_NAMES = {1: "movej", 2: "movej_ik", 3: "movel", 29: "set_tcp", 30: "get_inverse_kin_args",
-                 31: "protective_stop", 33: "stopl", 34: "stopj", 36: "is_pose_within_safety_limits", 37: "is_joints_within_safety_limits",
+                 31: "protective_stop", 33: "stopl", 34: "stopj", 36: "is_pose_within_safety_limits",
+                 37: "is_joints_within_safety_limits",
                  40: "get_tcp_offset", 46: "get_inverse_kin_default", 47: "is_steady",
                  60: "get_inverse_kin_has_solution_default", 61: "get_inverse_kin_has_solution_args",
                  255: "stop_script"}
@@ -54,7 +55,6 @@ class Program:
         name = header.split()[1].split("(")[0] if len(header.split()) > 1 else "program"
         return cls(name=name, has_ik_check="get_inverse_kin_has_solution(" in text,
                    has_protective_stop="protective_stop()" in text, has_tcp_offset="get_tcp_offset()" in text)
-
 
 
 class ScriptServer(TcpServer):
