@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from processes import alive, descendants
 from sim.evaluate import JsonLines, main
 from sim.evaluate.records import trial_key
 
@@ -34,37 +35,6 @@ def _env() -> dict:
 def _evaluate(*args: str, timeout: float = 60, prefix: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
     return subprocess.run([*prefix, sys.executable, "-m", "sim.evaluate", *args], cwd=REPO, env=_env(),
                           capture_output=True, text=True, timeout=timeout)
-
-
-def _processes() -> dict[int, tuple[int, str]]:
-    """{pid: (parent pid, command line)} of every process (from /proc)."""
-    table = {}
-    for entry in Path("/proc").iterdir():
-        try:
-            stat = (entry / "stat").read_text()
-            command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except (OSError, ValueError):
-            continue
-        if entry.name.isdigit():
-            table[int(entry.name)] = (int(stat.rpartition(")")[2].split()[1]), command)
-    return table
-
-
-def _descendants(pid: int) -> dict[int, str]:
-    """{pid: command line} of the processes descending from `pid`."""
-    table, found, frontier = _processes(), {}, [pid]
-    while frontier:
-        parent = frontier.pop()
-        for child, (ppid, command) in table.items():
-            if ppid == parent and child not in found:
-                found[child] = command
-                frontier.append(child)
-    return found
-
-
-def _alive(pids) -> list[int]:
-    return [pid for pid in pids if Path(f"/proc/{pid}").exists()
-            and (Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()[0] != "Z")]
 
 
 def _error(err: str) -> str:
@@ -249,18 +219,19 @@ def test_sigterm_stops_a_ray_driver_cleanly(delay, tmp_path) -> None:
     ray_processes: dict[int, str] = {}
     while not ray_processes and time.monotonic() < deadline and driver.poll() is None:
         time.sleep(0.5)
-        ray_processes = {pid: c for pid, c in _descendants(driver.pid).items() if "raylet" in c}
+        ray_processes = {pid: c for pid, c in descendants(driver.pid).items() if "raylet" in c}
     assert ray_processes, "the driver never started its Ray instance"
-    ray_processes = _descendants(driver.pid)
+    ray_processes = descendants(driver.pid)
     time.sleep(delay)
     driver.send_signal(signal.SIGTERM)
     _, err = driver.communicate(timeout=60)
     assert driver.returncode == 128 + signal.SIGTERM, err
     assert "SIGTERM received" not in err and "stopped by SIGTERM; the records written so far are kept" in _error(err)
     deadline = time.monotonic() + 30
-    while _alive(ray_processes) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in ray_processes) and time.monotonic() < deadline:
         time.sleep(0.5)
-    assert not _alive(ray_processes), f"processes left running: {[ray_processes[p] for p in _alive(ray_processes)]}"
+    left = [command for pid, command in ray_processes.items() if alive(pid)]
+    assert not left, f"processes left running: {left}"
 
 
 # ------------------------------------------------------------------------- storage: one sentence, nothing lost
@@ -386,7 +357,7 @@ def test_killing_one_of_two_workers_loses_no_finished_work(tmp_path) -> None:
     while time.monotonic() < deadline and driver.poll() is None and not _trials(out):
         time.sleep(0.2)
     written = _trials(out)
-    workers = [pid for pid, command in _descendants(driver.pid).items() if "spawn_main" in command]
+    workers = [pid for pid, command in descendants(driver.pid).items() if "spawn_main" in command]
     assert written and len(workers) == 2, "the run finished before a worker could be killed"
     os.kill(workers[0], signal.SIGKILL)
     _, err = driver.communicate(timeout=240)

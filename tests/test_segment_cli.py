@@ -14,6 +14,7 @@ import pytest
 import trimesh
 from trimesh.transformations import rotation_matrix
 
+from processes import alive, child_pids
 from seggrasp.__main__ import main
 from seggrasp.detect.base import Detections
 from seggrasp.detect.simulated import SimulatedDetector
@@ -260,28 +261,6 @@ def test_cli_refuses_a_mesh_over_the_face_limit(hammer_files, tmp_path: Path, ca
     assert f"segment takes at most {len(labels) - 1:,}" in capsys.readouterr().err
 
 
-def _children(pid: int) -> set[int]:
-    """Processes whose parent is `pid` (Linux /proc)."""
-    found = set()
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        if int(fields[1]) == pid:
-            found.add(int(stat.parent.name))
-    return found
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-@pytest.mark.slow
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 @pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT", "SIGKILL"])
 def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) -> None:
@@ -304,18 +283,18 @@ def test_killing_segment_kills_its_coacd_processes(tmp_path: Path, signum: str) 
         children: set[int] = set()
         while not children and time.monotonic() < deadline and cli.poll() is None:
             time.sleep(0.2)
-            children = _children(cli.pid)
+            children = child_pids(cli.pid)
         assert children, "no CoACD child appeared"
         time.sleep(0.5)
         cli.send_signal(getattr(signal, signum))
         cli.wait(timeout=30)
         time.sleep(3)
-        survivors = [pid for pid in children if _alive(pid)]
+        survivors = [pid for pid in children if alive(pid)]
         assert survivors == [], f"CoACD processes {survivors} outlived the killed CLI"
         assert b"Traceback" not in cli.stderr.read()
     finally:
-        for pid in _children(cli.pid) | (children if "children" in locals() else set()):
-            if _alive(pid):
+        for pid in child_pids(cli.pid) | (children if "children" in locals() else set()):
+            if alive(pid):
                 os.kill(pid, signal.SIGKILL)
         if cli.poll() is None:
             cli.kill()
