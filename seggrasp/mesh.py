@@ -96,10 +96,11 @@ def load_mesh(
     fmt = suffix[1:].upper()
     if path.stat().st_size == 0:
         raise ValueError(f"{path} is empty (0 bytes): not a readable {fmt} mesh")
-    if suffix == ".ply":
-        check_ascii_ply_counts(path, path.read_bytes())
+    raw = path.read_bytes() if suffix == ".ply" else None  # read once: checked here, then re-encoded if need be
+    if raw is not None:
+        check_ascii_ply_counts(path, raw)
     try:
-        source = _utf8_source(path, suffix)
+        source = _utf8_source(path, suffix, raw)
         scene = trimesh.load_scene(source, file_type=suffix[1:], process=False, skip_materials=True)
         geometry = scene.dump()
     except Exception as exc:  # trimesh raises many types for corrupt files
@@ -178,12 +179,13 @@ def check_ascii_ply_counts(path: Path, raw: bytes) -> None:
         )
 
 
-def _utf8_source(path: Path, suffix: str) -> Path | io.BytesIO:
-    """`path`, or its bytes with non-UTF-8 text re-encoded from Latin-1 (trimesh would otherwise need an optional
-    charset detector). Text is the whole file for OBJ, OFF and ASCII STL, the header for PLY."""
+def _utf8_source(path: Path, suffix: str, raw: bytes | None = None) -> Path | io.BytesIO:
+    """`path`, or its bytes (`raw` when already read) with non-UTF-8 text re-encoded from Latin-1 (trimesh would
+    otherwise need an optional charset detector). Text is the whole file for OBJ, OFF and ASCII STL, the header for
+    PLY."""
     if suffix not in (".obj", ".off", ".stl", ".ply"):
         return path
-    raw = path.read_bytes()
+    raw = path.read_bytes() if raw is None else raw
     if suffix == ".stl" and len(raw) >= 84 and len(raw) == 84 + 50 * int.from_bytes(raw[80:84], "little"):
         return path  # binary STL
     end = raw.find(b"end_header") if suffix == ".ply" else len(raw)
