@@ -59,6 +59,7 @@ class TwinArm:
         self._reference: KinematicArm | None = None
         self._moving = False
         self._over_force = 0
+        self._arm_links: set[int] = set()  # the robot's links from the upper arm to wrist 3
 
     # --- state (cached) ---
     def step(self, dt: float) -> None:
@@ -130,6 +131,7 @@ class TwinArm:
         robot.world.client.resetBasePositionAndOrientation(robot.body, position, orientation)
         robot.place(self._q)
         self._reference, self._moving, self._qd = None, False, np.zeros(6)
+        self._arm_links = set(range(robot.arm_joints[1], robot.gripper.base_link))
 
     def before_step(self, robot: UR5Arm, dt: float) -> None:
         """Command the joint servos for the next physics step."""
@@ -185,10 +187,9 @@ class TwinArm:
         `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` steps; "" otherwise. (The contact forces between the fingers and
         the object do not sum to what the arm feels in PyBullet: the squeeze leaves tens of newtons of residue.)"""
         c = robot.world.client
-        arm_links = set(range(robot.arm_joints[1], robot.gripper.base_link))  # upper arm to wrist 3
         press = 0.0
         for point in c.getContactPoints(bodyA=robot.body, bodyB=table):
-            if point[3] in arm_links:
+            if point[3] in self._arm_links:
                 return f"arm-table collision ({c.getJointInfo(robot.body, point[3])[12].decode()} touches the table)"
             press += point[9]
         press += max(0.0, sum(point[9] for point in c.getContactPoints(bodyA=obj, bodyB=table)) - weight)
