@@ -83,7 +83,8 @@ def run_command(argv: Sequence[str], timeout: float, env: dict[str, str] | None 
 
 
 @functools.cache
-def _unshare() -> tuple[str, ...]:
+def namespace_prefix() -> tuple[str, ...]:
+    """The command prefix that runs a program in a new network namespace here (`sim.lab.netns`), () if none."""
     return tuple(netns.unshare_command() or ())
 
 
@@ -93,5 +94,5 @@ def run_in_lab(code: str, serve_args: Sequence[str] = ("--kinematic",), timeout:
 
     The namespace is entered here already (`sim.lab run` would re-execute itself into it, one more start-up)."""
     argv = [sys.executable, "-m", "sim.lab", "run", *serve_args, "--", sys.executable, "-c", textwrap.dedent(code)]
-    prefix = _unshare()
+    prefix = namespace_prefix()
     return run_command([*prefix, *argv], timeout, {**({netns.NETNS_ENV: "1"} if prefix else {}), **(env or {})})

@@ -369,17 +369,18 @@ def test_assets_decompose_force_recomputes_the_bundled_runs(monkeypatch, tmp_pat
 def _segment_in_a_network_namespace(argv: list[str], tmp_path: Path, timeout: float) -> tuple[int, str, float]:
     """`python -m seggrasp segment ARGV` with no network (`unshare -n`) and no HF_HUB_OFFLINE: exit code, stderr,
     seconds."""
-    import shutil
     import subprocess
     import sys
     import time
 
-    if shutil.which("unshare") is None or subprocess.run(["unshare", "-n", "true"]).returncode != 0:
+    from lab_harness import namespace_prefix
+
+    if not namespace_prefix():
         pytest.skip("needs unshare -n (a network namespace) to take the network away")
     env = {k: v for k, v in os.environ.items() if k not in ("HF_HUB_OFFLINE", "TRANSFORMERS_OFFLINE")}
     env["HF_HOME"] = str(tmp_path / "hf_home")  # an empty hub cache
     started = time.perf_counter()
-    done = subprocess.run(["unshare", "-n", sys.executable, "-m", "seggrasp", "segment", *argv], env=env,
+    done = subprocess.run([*namespace_prefix(), sys.executable, "-m", "seggrasp", "segment", *argv], env=env,
                           capture_output=True, text=True, timeout=timeout)
     return done.returncode, done.stderr, time.perf_counter() - started
 

@@ -11,7 +11,6 @@ either its URCap socket (fault 13 injected on the control channel) or a stand-in
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -19,19 +18,13 @@ import textwrap
 import pytest
 
 from fakes_hardware import EXAMPLE_CONFIG, example_config, recorded_cameras_config, write_config
-from lab_harness import run_command, run_in_lab
+from lab_harness import namespace_prefix, run_command, run_in_lab
 
 #: Every hostile run must end within this (issue 34: "every command ends within 60 s with a clear message").
 BOUND = 60.0
 
 
-def _can_unshare() -> bool:
-    if shutil.which("unshare") is None:
-        return False
-    return subprocess.run(["unshare", "-n", "true"], capture_output=True).returncode == 0
-
-
-needs_netns = pytest.mark.skipif(not _can_unshare(), reason="needs `unshare -n` (root or user namespaces)")
+needs_netns = pytest.mark.skipif(not namespace_prefix(), reason="needs a network namespace (unshare -n)")
 
 # Runs in a fresh network namespace: loopback up, the stand-in on every UR port, then the CLI in a subprocess with a
 # hard timeout beyond BOUND (so a hang is measured, not waited for); with `interrupt`, SIGINT reaches the CLI half a
@@ -120,7 +113,7 @@ def _one_line_error(stderr: str) -> str:
 @pytest.mark.parametrize("mode", ["silent", "garbage", "trickle"])
 def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_path, mode):
     # on 5cb5eaf all three were still running at 120 s: URArm.connect had no deadline (F3)
-    run = run_command(["unshare", "-n", sys.executable, "-c", _CONTROLLER, mode, _local_config(tmp_path), "-"],
+    run = run_command([*namespace_prefix(), sys.executable, "-c", _CONTROLLER, mode, _local_config(tmp_path), "-"],
                       timeout=BOUND + 40.0)
     assert run.returncode == 0, run.stderr
     result = run.result
@@ -136,7 +129,7 @@ def test_check_connect_ends_in_bounded_time_against_a_hostile_controller(tmp_pat
 @needs_netns
 def test_ctrl_c_while_connecting_ends_with_one_line(tmp_path):
     # seconds counted from the SIGINT
-    run = run_command(["unshare", "-n", sys.executable, "-c", _CONTROLLER, "silent", _local_config(tmp_path),
+    run = run_command([*namespace_prefix(), sys.executable, "-c", _CONTROLLER, "silent", _local_config(tmp_path),
                        "interrupt"], timeout=BOUND + 40.0)
     result = run.result
     assert result["returncode"] == 130 and result["seconds"] < 5, result

@@ -14,7 +14,7 @@ import pytest
 import yaml
 from scipy.spatial.transform import Rotation
 
-from tests.lab_harness import ROOT, _unshare, run_command
+from lab_harness import ROOT, namespace_prefix, run_command
 from tests.test_lab_episode import emulated_config
 
 SERIAL = "941000000001"  # cam0
@@ -135,7 +135,7 @@ def test_calibrate_through_the_wire_recovers_the_twin_camera_extrinsics(tmp_path
             "--poses", str(POSES), "--board", "7x6", "--square", "0.03", "--out", str(out)]
     from sim.lab import netns
 
-    prefix = _unshare()
+    prefix = namespace_prefix()
     started = time.monotonic()
     run = run_command([*prefix, *argv], timeout=240, env={netns.NETNS_ENV: "1"} if prefix else None)
     elapsed = time.monotonic() - started
