@@ -86,7 +86,41 @@ class GripperSettings:
 class SlideDrive:
     """What the twin's parallel hands share: once the fingers stall on an object, the slides push with the grip
     force. A subclass drives its fingers in `_drive_fingers` and has `world`, `body`, `slides`, `settings`,
-    `max_travel`, `travel()` and `command_close()`."""
+    `max_travel`, `max_width`, `travel()`, `travel_for_width()` and `set_travel()`."""
+
+    def set_width(self, width: float) -> None:
+        self.set_travel(self.travel_for_width(width))
+
+    def width(self) -> float:
+        """Current pad gap in metres."""
+        return self.max_width - sum(self.travel())
+
+    def command_close(self) -> None:
+        """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
+        at the closing speed with the grip force as the force limit (`_drive_fingers`)."""
+        self._slide_drive = "closing"
+
+    def _drive_slides(self, travel: tuple[float, float], closing: float, carriages: tuple[int, ...]) -> None:
+        """The slides' part of `_drive_fingers`: while closing drive both slides towards closed (centred:
+        `CENTRING_GAIN`), while squeezing push them with the grip force, and cancel the drive mass's weight
+        (`CARRIAGE_MASS`) on `carriages`. `closing` is the sign (+1 or -1) of a slide's joint motion towards
+        closed."""
+        c = self.world.client
+        if self._slide_drive == "squeezing":
+            c.setJointMotorControlArray(self.body, list(self.slides), pybullet.TORQUE_CONTROL,
+                                        forces=[closing * self.settings.grip_force] * 2)
+        elif self._slide_drive == "closing":
+            correction = CENTRING_GAIN * (travel[1] - travel[0])
+            c.setJointMotorControlArray(
+                self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
+                targetVelocities=[closing * (self.settings.closing_speed + correction),
+                                  closing * (self.settings.closing_speed - correction)],
+                forces=[self.settings.grip_force] * 2,
+            )
+        for link in carriages:
+            centre = c.getLinkState(self.body, link)[0]
+            c.applyExternalForce(self.body, link, [0.0, 0.0, -CARRIAGE_MASS * self.world.physics.gravity], centre,
+                                 pybullet.WORLD_FRAME)
 
     def squeeze(self) -> None:
         """From the next physics step until the next `set_travel`, push both slides closed with the grip force, as
@@ -231,20 +265,7 @@ class Robotiq2F85(SlideDrive):
             self.body, [j for j, _ in targets], pybullet.POSITION_CONTROL, targetPositions=[t for _, t in targets],
             forces=forces,
         )
-        if self._slide_drive == "squeezing":
-            c.setJointMotorControlArray(self.body, list(self.slides), pybullet.TORQUE_CONTROL,
-                                        forces=[self.settings.grip_force] * 2)
-        elif self._slide_drive == "closing":
-            correction = CENTRING_GAIN * (travel[1] - travel[0])
-            c.setJointMotorControlArray(
-                self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
-                targetVelocities=[self.settings.closing_speed + correction, self.settings.closing_speed - correction],
-                forces=[self.settings.grip_force] * 2,
-            )
-        for link in self.carriages:
-            centre = c.getLinkState(self.body, link)[0]
-            c.applyExternalForce(self.body, link, [0.0, 0.0, -CARRIAGE_MASS * self.world.physics.gravity], centre,
-                                 pybullet.WORLD_FRAME)
+        self._drive_slides(travel, 1.0, self.carriages)
 
     def set_travel(self, travel: float) -> None:
         """Place both fingers at a slide travel instantly (no physics) and hold them there; used at reset and for
@@ -262,17 +283,10 @@ class Robotiq2F85(SlideDrive):
             forces=[self.settings.grip_force] * 2,
         )
 
-    def set_width(self, width: float) -> None:
-        self.set_travel(self.travel_for_width(width))
-
     def travel(self) -> tuple[float, float]:
         """Each slide's travel (m) from fully open."""
         c = self.world.client
         return tuple(float(c.getJointState(self.body, slide)[0]) for slide in self.slides)
-
-    def width(self) -> float:
-        """Current pad gap in metres."""
-        return self.max_width - sum(self.travel())
 
     def finger_asymmetry(self) -> float:
         """Distance (m) between the two pad centres' offsets from the gripper's centre plane, i.e. how far the
@@ -281,9 +295,3 @@ class Robotiq2F85(SlideDrive):
         left, right = (T_base_world @ self.world.link_pose(self.body, link) for link in self.pad_links)
         return float(np.linalg.norm(left[:3, 3] * np.array([-1.0, 1.0, 1.0]) - right[:3, 3]))
 
-    # --- actuation --------------------------------------------------------------------------------------------
-
-    def command_close(self) -> None:
-        """From the next physics step until the next `set_travel`, velocity control of both slides towards closed
-        at the closing speed with the grip force as the force limit (`_drive_fingers`)."""
-        self._slide_drive = "closing"

@@ -18,9 +18,8 @@ from __future__ import annotations
 import numpy as np
 import pybullet
 
-from sim.gripper import (CENTRING_GAIN, COUPLING_ERP, COUPLING_FORCE, PAD_FRICTION, PAD_ROLLING_FRICTION,
+from sim.gripper import (COUPLING_ERP, COUPLING_FORCE, PAD_FRICTION, PAD_ROLLING_FRICTION,
                          GripperSettings, SlideDrive)
-from sim.gripper_urdf import CARRIAGE_MASS
 from sim.world import World
 
 #: The description's finger joints (left, right) and links, and the hand link they hang from.
@@ -93,10 +92,6 @@ class FrankaHandDrive(SlideDrive):
         c = self.world.client
         return tuple(self._open - float(c.getJointState(self.body, j)[0]) for j in self.slides)
 
-    def width(self) -> float:
-        """Current pad gap in metres."""
-        return self.max_width - sum(self.travel())
-
     def finger_asymmetry(self) -> float:
         """Distance (m) between the two pad centres' offsets from the hand's centre plane (mirror symmetry about
         the hand's x-z plane)."""
@@ -109,23 +104,7 @@ class FrankaHandDrive(SlideDrive):
     def _drive_fingers(self) -> None:
         """Before every physics step: while closing, drive both fingers towards closed (centred, as the 2F-85's),
         and cancel the fingers' drive mass's weight."""
-        c = self.world.client
-        if self._slide_drive == "squeezing":
-            c.setJointMotorControlArray(self.body, list(self.slides), pybullet.TORQUE_CONTROL,
-                                        forces=[-self.settings.grip_force] * 2)
-        elif self._slide_drive == "closing":
-            travel = self.travel()
-            correction = CENTRING_GAIN * (travel[1] - travel[0])
-            c.setJointMotorControlArray(
-                self.body, list(self.slides), pybullet.VELOCITY_CONTROL,
-                targetVelocities=[-(self.settings.closing_speed + correction),
-                                  -(self.settings.closing_speed - correction)],
-                forces=[self.settings.grip_force] * 2,
-            )
-        for link in self.pad_links:
-            centre = c.getLinkState(self.body, link)[0]
-            c.applyExternalForce(self.body, link, [0.0, 0.0, -CARRIAGE_MASS * self.world.physics.gravity], centre,
-                                 pybullet.WORLD_FRAME)
+        self._drive_slides(self.travel(), -1.0, self.pad_links)
 
     def set_travel(self, travel: float) -> None:
         """Place both fingers at a travel instantly (no physics) and hold them there."""
@@ -137,10 +116,3 @@ class FrankaHandDrive(SlideDrive):
         c.setJointMotorControlArray(self.body, list(self.slides), pybullet.POSITION_CONTROL,
                                     targetPositions=[position] * 2, forces=[self.settings.grip_force] * 2)
 
-    def set_width(self, width: float) -> None:
-        self.set_travel(self.travel_for_width(width))
-
-    def command_close(self) -> None:
-        """From the next physics step until the next `set_travel`, close at the closing speed with the grip force
-        as the force limit."""
-        self._slide_drive = "closing"
