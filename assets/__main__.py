@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from assets.generate import ASSETS_DIR, generate_set
-from seggrasp.__main__ import bounded_int
+from seggrasp.arguments import bounded_int
 from seggrasp.decompose.config import MAX_SEED
 from seggrasp.objects import asset_ids, load_asset, load_asset_set
 
