@@ -55,6 +55,7 @@ def _mesh_path(filename: str) -> str:
     return str(PANDA_DIR / filename.replace("package://", ""))
 
 
+@lru_cache(maxsize=1)
 def pad_centre_height() -> float:
     """The pads' centre above the hand link (m): the finger joint's origin plus the middle of the finger's flat
     inner face (the collision mesh's vertices within 0.5 mm of its inner plane)."""
