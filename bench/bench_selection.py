@@ -225,7 +225,6 @@ def object_evidence(episode) -> dict[str, np.ndarray]:
 
 def planned_object(episode, top_k: int) -> dict[str, list[tuple[float, int]]]:
     """variant -> per prompt (Part Sel. share of the top-k slots, executed slots), from planned contacts."""
-    from seggrasp.episode import PAD_FOOTPRINT
     from seggrasp.grasp import contact_faces, select_per_prompt
     from seggrasp.grasp.policy import face_part_probabilities
 
@@ -236,7 +235,7 @@ def planned_object(episode, top_k: int) -> dict[str, list[tuple[float, int]]]:
     results = {}
     for name, variant in planned_variants().items():
         if variant[0] == "labels":
-            chosen = select_per_prompt(grasps, mesh, evidence[f"labels:{variant[1]}"], n_prompts, top_k, PAD_FOOTPRINT)
+            chosen = select_per_prompt(grasps, mesh, evidence[f"labels:{variant[1]}"], n_prompts, top_k, episode.footprint)
         else:
             probs = face_part_probabilities([evidence[e] for e in variant[1]])
             chosen = variant[2].select(grasps, mesh, probs, top_k)

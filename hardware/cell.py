@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Callable
 
@@ -27,6 +28,7 @@ from hardware.robotiq import RobotiqGripper
 from hardware.safety import SafetyGuard
 from hardware.ur import URArm
 from seggrasp.cell import MAX_SLIP, Frame, GraspOutcome
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +88,11 @@ class RealCell:
         self.cameras = cameras
         self.dry_run = dry_run
         self._closed = False
+
+    @property
+    def hand(self) -> Hand:
+        """The cell's 2F-85 with the stroke measured on it (`gripper.stroke` of the config)."""
+        return replace(ROBOTIQ_2F85, stroke=self.config.gripper.stroke)
 
     @classmethod
     def from_config(cls, path: str | Path, dry_run: bool = False, *,

@@ -13,7 +13,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 import trimesh
 
-from seggrasp.hands import ROBOTIQ_2F85
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 
 @dataclass
@@ -102,6 +102,8 @@ class Cell(Protocol):
     #: so no outcome depends on the checks made before it. A cell that checks only its arm (the real cell) is reset
     #: only when a grasp has been executed since the last reset: one reset ("place the object") per grasp.
     models_scene: bool
+    #: The cell's gripper (`seggrasp.hands`): the episode samples, ranks and plans its grasps for this hand.
+    hand: Hand
 
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
         """Put the scene in its start state (the same seed gives the same scene)."""

@@ -30,6 +30,7 @@ from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.select import TOP_K
+from seggrasp.hands import Hand
 from seggrasp.labels import prompt_index
 from seggrasp.mesh import mesh_hash, prepare_mesh
 from seggrasp.method import ORACLE, ObjectSegmenter, PartPlan, check_method
@@ -37,8 +38,6 @@ from seggrasp.objects import ObjectModel
 from seggrasp.truth import DetectorSpec, GroundTruth
 
 LOG = logging.getLogger(__name__)
-#: Label-based selection puts the grasps whose pads each press mostly on the labelled part first.
-PAD_FOOTPRINT = PadFootprint()
 #: Slot planning looks this many times top-k deep into each prompt's ranked grasps for ones the arm reaches, and
 #: at least `MIN_REACH_DEPTH` deep (a top-1 request still gets the best grasp among its 30 best the cell executes).
 REACH_DEPTH = 3
@@ -173,11 +172,11 @@ def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
 
 def plan_slots(
     plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int,
-    reaches: Callable[[np.ndarray, float], bool] | None = None,
+    reaches: Callable[[np.ndarray, float], bool] | None = None, footprint: PadFootprint = PadFootprint(),
 ) -> list[Slot]:
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
     probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
-    pads press mostly on them first (`PAD_FOOTPRINT`); moved into the world. With `reaches` (world pose, width ->
+    pads press mostly on them first (`footprint`, the cell's hand's); moved into the world. With `reaches` (world pose, width ->
     whether the cell would execute the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least
     `MIN_REACH_DEPTH`) come first, in rank order; unreachable ones fill the slots left."""
     depth = top_k if reaches is None else max(REACH_DEPTH * top_k, MIN_REACH_DEPTH)
@@ -188,7 +187,7 @@ def plan_slots(
             chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, depth)
         else:
             chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, depth,
-                                                  PAD_FOOTPRINT)
+                                                  footprint)
         per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
     slots = []
     for k in targets:
@@ -252,7 +251,9 @@ class Episode:
         outcome_cache: dict | None = None,
     ) -> None:
         self.cell, self.context, self.detector, self.truth, self.settings = cell, context, detector, truth, settings
-        self.generator = generator or AntipodalSampler()
+        self.hand: Hand = cell.hand
+        self.generator = generator or AntipodalSampler(gripper=self.hand)
+        self.footprint = PadFootprint(gripper=self.hand)
         self.vote_cache = vote_cache
         self.outcome_cache = outcome_cache
         self._observation: Observation | None = None
@@ -295,7 +296,7 @@ class Episode:
                 detector = self.detector.for_mesh(self.context.prompts, prepared, self.truth_on_mesh)
             self._segmenter = ObjectSegmenter(
                 mesh, self.context.prompts, detector, self.detector.label, seed=self._decomposition_seed(),
-                view_seed=self.detector.seed, prepared=prepared, coarse_scores=coarse,
+                view_seed=self.detector.seed, prepared=prepared, coarse_scores=coarse, hand=self.hand,
                 decomposition_cache=self.settings.decomposition_cache,
                 decomposition_workers=self.settings.decomposition_workers,
             )
@@ -352,7 +353,7 @@ class Episode:
         indices = self.target_indices(targets)
         grasps = GraspSet.empty() if plan.own_grasps is not None else self.grasps()
         return plan_slots(plan, grasps, self.observation, len(self.context.prompts), indices, self.settings.top_k,
-                          self.reaches)
+                          self.reaches, self.footprint)
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
         """Whether the cell would execute this grasp (`Cell.check_reach`; remembered per grasp). A cell that models

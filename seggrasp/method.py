@@ -34,6 +34,7 @@ from seggrasp.detect.base import Detector
 from seggrasp.fusion import agreed_labels, coarsest_with_parts, part_mean_scores, refine_labels, refine_scores
 from seggrasp.grasp import GraspSet
 from seggrasp.grasp.policy import PartPolicy, face_part_probabilities, one_hot
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 from seggrasp.mesh import PreparedMesh, prepare_mesh
 from seggrasp.segment import SegmentationConfig, segment
 from seggrasp.vote import labels_from_scores
@@ -106,7 +107,8 @@ class ObjectSegmenter:
     of `mesh`, made here when not given) with `detector`, and are lifted to `mesh`'s face order; the decomposition
     sweep and the fusion then run on `mesh` itself, the mesh the bundled decomposition caches were computed for.
     `coarse_scores` (from an earlier run with the same mesh, prompts and detector) replace rendering and detection:
-    then `detector` may be None. `seed` seeds the decomposition sweep and `view_seed` the camera rig.
+    then `detector` may be None. `seed` seeds the decomposition sweep and `view_seed` the camera rig; `hand` is the
+    gripper ShapeGrasp plans its grasps for.
     """
 
     def __init__(
@@ -123,6 +125,7 @@ class ObjectSegmenter:
         decomposition_cache: str | None = None,
         decomposition_workers: int | None = None,
         partitions: list[Partition] | None = None,
+        hand: Hand = ROBOTIQ_2F85,
     ) -> None:
         if detector is None and coarse_scores is None:
             raise ValueError("a segmenter needs a detector or precomputed coarse scores")
@@ -135,6 +138,7 @@ class ObjectSegmenter:
         self.view_seed = view_seed
         self.decomposition_cache = decomposition_cache
         self.decomposition_workers = decomposition_workers
+        self.hand = hand
         self._coarse = None if coarse_scores is None else np.asarray(coarse_scores, dtype=np.float64)
         self._partitions = partitions
 
@@ -176,7 +180,7 @@ class ObjectSegmenter:
         if method == SHAPEGRASP:
             part_of_face = coarsest_with_parts(self.partitions(), len(self.prompts)).part_of_face
             votes = part_mean_scores(self.coarse_scores(), part_of_face, self.mesh.area_faces)
-            grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj)
+            grasps = shapegrasp_grasps(self.mesh, votes, part_of_face, T_world_obj, self.hand)
             return PartPlan(method, self.detector_label, shapegrasp_labels(votes, part_of_face), grasps)
         recipe = RECIPES[method]
         partitions = [] if recipe.refinement == "none" else self.partitions()

@@ -9,6 +9,7 @@ from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.decompose import Partition
 from seggrasp.fusion import part_mean_scores
 from seggrasp.grasp import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import (Episode, EpisodeContext, EpisodeSettings, Observation, failure_of, plan_slots,
                               table_plane_in_object_frame)
@@ -231,6 +232,8 @@ def test_slots_take_the_grasps_the_arm_reaches_first_and_fill_up_with_the_others
 class OutOfReachCell:
     """A cell on a fixed mesh whose arm reaches no grasp centred above `z_limit` (world = object frame); it counts
     its resets and the checks made in a scene a grasp was executed in since the last reset (`checked_disturbed`)."""
+
+    hand = ROBOTIQ_2F85
 
     def __init__(self, mesh: trimesh.Trimesh, z_limit: float, models_scene: bool = True) -> None:
         self.mesh, self.z_limit, self.models_scene, self.checked = mesh, z_limit, models_scene, 0

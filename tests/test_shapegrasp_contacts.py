@@ -9,6 +9,7 @@ from seggrasp.baselines import shapegrasp_grasps
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, Slot, action_slot
 from seggrasp.grasp import GraspSet
+from seggrasp.hands import ROBOTIQ_2F85
 from seggrasp.grasp.pads import pad_contacts
 from seggrasp.truth import GroundTruth
 
@@ -80,6 +81,7 @@ class StillCell:
     """A cell whose grasps reach but never lift and touch nothing; it counts its executions."""
 
     models_scene = False
+    hand = ROBOTIQ_2F85
 
     def __init__(self, mesh: trimesh.Trimesh) -> None:
         self.mesh, self.executed = mesh, 0

@@ -148,6 +148,10 @@ class EmulatedCell:
     def table_height(self) -> float:
         return self.real.table_height
 
+    @property
+    def hand(self):
+        return self.real.hand
+
     def reset(self, seed: int | None = None, object_id: str | None = None) -> None:
         """RealCell's reset (gripper open, arm home), then the emulator places `object_id` at `seed`."""
         from sim.lab.control import request
