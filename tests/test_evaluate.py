@@ -80,7 +80,8 @@ def test_summary_counts_part_selection_success_and_variance() -> None:
     assert b["success"] == 1.0 and "miou" not in b
     text = markdown_report(summary, {"detector": "simulated:typical", "embodiment": "floating", "backend": "sim",
                                      "perceive": False, "seed": 0, "top_k": 2, "n_objects": 2, "wall_time_s": 1.0})
-    assert "| a | 0.600 | 0.600 | 0.400 | 0.500 | 0.750 | 0.500 | 0.0000 | 4 / 5 | 4 |" in text
+    assert "| a | 0.600 | 0.600 | 0.400 | 0.500 | 0.750 | 0.500 | — | 0.0000 | 4 / 5 | 4 |" in text
+    assert "cannot hold" not in text  # no request was judged
     assert "| knife | 3 | 1 | 1 |" in text  # failures of a on knives: no_grasp 1, other 1
 
 

@@ -84,7 +84,7 @@ def test_a_folder_written_before_seeds_resumes_as_its_one_seed(tmp_path) -> None
            "dry_run": False, "quick": False, "prompts": [], "record": 0}
     (out / "run.json").write_text(json.dumps(old))
     record = {"object_id": "mug_classic", "method": "oracle", "prompt": "handle", "rank": 0}
-    assert trial_key(record) == ("mug_classic", 0, "oracle", "handle", 0)
+    assert trial_key(record) == ("mug_classic", 0, "ur5", "oracle", "handle", 0)  # and on the UR5
     # it simulated the twin as it then was: the 2F-85's linkage at 100 N
     then = dict(grip_force=100.0, twin_gripper="linkage")
     config = prepare_out(out, RunConfig(["oracle"], ["mug_classic"], seeds=[0], top_k=1, **then), resume=True)

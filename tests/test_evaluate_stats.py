@@ -116,15 +116,17 @@ def test_the_engine_benchmark_reports_a_joined_ray_instance_beside_a_started_one
 
 
 def _mixed_rows() -> list[dict]:
-    """Slots of two requests: executed or not, with unknown contacts/success, first and later ranks."""
+    """Slots of three requests: executed or not, with unknown contacts/success, first and later ranks; request c was
+    judged infeasible (not executed), a and b feasible."""
     base = {"method": "m", "category": "thing", "seed": 0, "reachable": True, "detector": "simulated:typical",
             "T_world_grasp": np.eye(4).tolist()}
     slots = [  # (object, rank, executed, contacts_on_part, success)
         ("a", 0, True, True, True), ("a", 1, True, True, False), ("a", 2, False, None, None),
         ("b", 0, True, False, False), ("b", 1, True, None, None), ("b", 2, False, False, False),
+        ("c", 0, False, False, False), ("c", 1, False, False, False), ("c", 2, False, False, False),
     ]
-    return [dict(base, object_id=o, prompt="handle", rank=k, executed=e, contacts_on_part=c, success=s)
-            for o, k, e, c, s in slots]
+    return [dict(base, object_id=o, prompt="handle", rank=k, executed=e, contacts_on_part=c, success=s,
+                 infeasible=o == "c") for o, k, e, c, s in slots]
 
 
 def test_the_report_s_grasp_figures_are_the_interval_means_and_keep_their_values() -> None:
@@ -132,12 +134,15 @@ def test_the_report_s_grasp_figures_are_the_interval_means_and_keep_their_values
 
     rows = _mixed_rows()
     figures = grasp_metrics(rows)
-    # hand-counted: all slots with a known value; top-1 = rank 0; executed-only = executed with a known value
-    assert figures["part_selection_all_slots"] == pytest.approx(2 / 4)
-    assert figures["success_all_slots"] == pytest.approx(1 / 4)
-    assert figures["success_top1"] == pytest.approx(1 / 2)
+    # hand-counted: all slots with a known value; top-1 = rank 0; executed-only = executed with a known value;
+    # feasible-only = the slots of requests a and b with a known success
+    assert figures["part_selection_all_slots"] == pytest.approx(2 / 7)
+    assert figures["success_all_slots"] == pytest.approx(1 / 7)
+    assert figures["success_top1"] == pytest.approx(1 / 3)
     assert figures["part_selection"] == pytest.approx(2 / 3)
     assert figures["success"] == pytest.approx(1 / 3)
+    assert figures["success_feasible"] == pytest.approx(1 / 4)
+    assert (figures["requests"], figures["infeasible_requests"], figures["judged_requests"]) == (3, 1, 3)
     intervals = method_intervals(rows, [], ["m"])["m"]
     for name in GRASP_METRICS:
         assert figures[name] == pytest.approx(intervals[name]["mean"]), name

@@ -14,6 +14,7 @@ from fakes_hardware import EXAMPLE_CONFIG, example_config, write_config
 from hardware.config import load_config
 from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from seggrasp.grasp.antipodal import AntipodalConfig
+from seggrasp.hands import FRANKA_HAND
 from seggrasp.objects import load_asset
 from sim.evaluate import main
 from sim.evaluate.cli import build_config, parse_args
@@ -28,7 +29,9 @@ def test_the_twin_the_sampler_and_the_example_cell_yaml_share_the_default_grip_f
     assert example["gripper"]["force"] == DEFAULT_GRIP_FORCE
     assert example["limits"]["max_grip_force"] >= DEFAULT_GRIP_FORCE
     assert GripperSettings().grip_force == AntipodalConfig().grip_force == DEFAULT_GRIP_FORCE
-    assert RunConfig(methods=["oracle"], objects=["mug_classic"]).grip_force == DEFAULT_GRIP_FORCE
+    run = RunConfig(methods=["oracle"], objects=["mug_classic"])
+    assert run.grip_force is None and run.hand_grip_force == DEFAULT_GRIP_FORCE  # None: each hand's own default
+    assert run.at_robot("panda").hand_grip_force == FRANKA_HAND.default_grip_force
 
 
 def test_a_cell_yaml_without_a_grip_force_grips_at_the_twin_default(tmp_path):
@@ -41,7 +44,12 @@ def test_a_cell_yaml_without_a_grip_force_grips_at_the_twin_default(tmp_path):
 @pytest.mark.parametrize("value", ["300", "10", "nan"])
 def test_the_grip_force_option_is_checked_against_the_2f85_range(value, capsys):
     assert main(["--methods", "oracle", "--objects", "mug_classic", "--grip-force", value]) == 2
-    assert "outside the 2F-85's range 20-235 N" in capsys.readouterr().err
+    assert "outside the ur5's robotiq_2f85 range 20-235 N" in capsys.readouterr().err
+
+
+def test_the_grip_force_option_is_checked_against_every_robot_s_hand(capsys):
+    assert main(["--methods", "oracle", "--objects", "mug_classic", "--robots", "ur5,panda", "--grip-force", "200"]) == 2
+    assert "outside the panda's franka_hand range 20-140 N" in capsys.readouterr().err
 
 
 def test_the_grip_force_option_is_refused_for_the_real_cell(capsys):

@@ -10,16 +10,16 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Sequence
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE, GRIP_FORCE_RANGE
 from seggrasp.grasp.select import TOP_K
 from seggrasp.method import METHODS
 from seggrasp.truth import REAL_DETECTORS, SIMULATED_PRESETS, parse_detector
-from sim.cell import EMBODIMENTS
+from sim.cell import EMBODIMENTS, ROBOTS
 from sim.evaluate import emulated
 from sim.evaluate.config import (
     DEFAULT_METHODS,
     MAX_SEEDS,
     MAX_TOP_K,
+    DEFAULT_ROBOT,
     QUICK_CATEGORIES,
     QUICK_METHODS,
     QUICK_TOP_K,
@@ -50,6 +50,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--embodiment", choices=EMBODIMENTS,
                         help="twin only: arm, the UR5 carries the 2F-85 (reach and collisions checked), or floating, "
                         "the 2F-85 alone is placed at each grasp (default: arm; --quick: floating)")
+    parser.add_argument("--robots", help=f"twin only: comma-separated robot systems, from {','.join(ROBOTS)} (ur5: the "
+                        "UR5 with the Robotiq 2F-85; panda: the Franka Panda with the Franka Hand); every method runs "
+                        f"on each and the report gives each one's tables and their average (default: {DEFAULT_ROBOT})")
     parser.add_argument("--workers", type=int, default=1,
                         help="(object, seed) tasks run in parallel (local processes, or a local Ray instance's CPUs; "
                         "default: 1)")
@@ -84,9 +87,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         "trial's result) of the first N slots with a grasp per method and object to OUT/strips/, "
                         "slots whose outcome is reused simulated again for the strip (default: 0)")
     parser.add_argument("--grip-force", type=float, default=None, metavar="N",
-                        help=f"twin only: the gripper's force in N, {GRIP_FORCE_RANGE[0]:g}-{GRIP_FORCE_RANGE[1]:g} like the "
-                        f"2F-85 (default: {DEFAULT_GRIP_FORCE:g}, the example cell.yaml's gripper.force); the grasp "
-                        "sampler's torsion limit follows it. A real cell grips with its cell.yaml's gripper.force")
+                        help="twin only: the gripper's force in N, within each robot's hand's range ("
+                        + "; ".join(f"{name}: {hand.grip_force_range[0]:g}-{hand.grip_force_range[1]:g}"
+                                    for name, hand in ROBOTS.items())
+                        + "); default: each hand's own ("
+                        + ", ".join(f"{name} {hand.default_grip_force:g}" for name, hand in ROBOTS.items())
+                        + "); the grasp sampler's torsion limit follows it. A real cell grips with its cell.yaml's "
+                        "gripper.force")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log every step, debug messages included (default: warnings and errors only)")
     return parser.parse_args(argv)
@@ -98,7 +105,7 @@ SETTINGS = ("detector", "weights", "embodiment", "top_k", "backend", "config", "
             "grip_force", "quick")
 #: The value of each setting not given, on a fresh run (`embodiment` and `top_k`: see `_defaults`).
 DEFAULTS = {"detector": "typical", "weights": None, "backend": "sim", "config": None, "perceive": False,
-            "dry_run": False, "prompts": None, "grip_force": None, "quick": False}
+            "dry_run": False, "prompts": None, "grip_force": None, "quick": False, "robots": DEFAULT_ROBOT}
 
 
 def _split(text: str | None) -> list[str]:
@@ -194,11 +201,19 @@ def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
         raise ValueError(f"unknown method(s) {unknown}; choose from {list(METHODS)}")
     parse_detector(args.detector, args.weights)
     _check_backend(args)
-    _check_twin_settings(args)
+    check_grip_force(args.grip_force, _robots(args.robots))
 
 
 def _check_backend(args: argparse.Namespace) -> None:
-    """What the real cell cannot do (fresh run or resumed: `args.backend` is the run's)."""
+    """What the real cell and the floating gripper cannot do (fresh run or resumed: `args.backend` and
+    `args.embodiment` are the run's)."""
+    robots = _split(args.robots) if isinstance(args.robots, str) else list(args.robots or [])
+    other = [robot for robot in robots if robot != DEFAULT_ROBOT]
+    if other and args.backend == "real":
+        raise ValueError(f"--robots {','.join(other)}: the real cell is a UR5 with a 2F-85 (drop --robots)")
+    if other and args.embodiment == "floating":
+        raise ValueError(f"--robots {','.join(other)}: the floating gripper is the 2F-85 alone; the "
+                         f"{', '.join(other)} runs with --embodiment arm")
     if args.record and args.backend == "real":
         raise ValueError("--record needs the twin: the real cell cannot record picture strips (drop --record)")
     if args.engine == "ray" and args.backend == "real":
@@ -207,12 +222,24 @@ def _check_backend(args: argparse.Namespace) -> None:
         raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
 
 
-def _check_twin_settings(args: argparse.Namespace) -> None:
-    if args.grip_force is None:
+def check_grip_force(grip_force: float | None, robots: Sequence[str]) -> None:
+    """A grip force (None: each hand's default) must be within the hand's range on every robot of the run."""
+    if grip_force is None:
         return
-    low, high = GRIP_FORCE_RANGE
-    if not low <= args.grip_force <= high:  # also rejects nan
-        raise ValueError(f"--grip-force {args.grip_force:g} N is outside the 2F-85's range {low:g}-{high:g} N")
+    for robot in robots:
+        hand = ROBOTS[robot]
+        low, high = hand.grip_force_range
+        if not low <= grip_force <= high:  # also rejects nan
+            raise ValueError(f"--grip-force {grip_force:g} N is outside the {robot}'s {hand.name} range "
+                             f"{low:g}-{high:g} N")
+
+
+def _robots(text: str) -> list[str]:
+    robots = _unique(_split(text), "--robots")
+    unknown = [robot for robot in robots if robot not in ROBOTS]
+    if unknown or not robots:
+        raise ValueError(f"unknown robot(s) {unknown or [text]}; choose from {list(ROBOTS)}")
+    return robots
 
 
 def _check_real(args: argparse.Namespace, methods: list[str], prompts: list[str]) -> None:
@@ -250,9 +277,8 @@ def build_config(args: argparse.Namespace, recorded: RunConfig | None = None) ->
         methods=methods, objects=objects, detector=args.detector, weights=args.weights, embodiment=args.embodiment,
         seeds=seeds or [0], top_k=args.top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
-        prompts=prompts, record=args.record,
-        grip_force=DEFAULT_GRIP_FORCE if args.grip_force is None else args.grip_force,
-        twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "",
+        prompts=prompts, record=args.record, grip_force=args.grip_force,
+        twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "", robots=_robots(args.robots),
     )
 
 
@@ -275,13 +301,16 @@ def _resumed(args: argparse.Namespace, recorded: RunConfig) -> RunConfig:
     if recorded.backend == "sim" and (objects or categories):
         objects = _select_objects(objects, categories, quick=False)
     seeds = _seeds(args) or []
+    robots = _robots(args.robots) if args.robots is not None else []
     merged = {name: getattr(recorded, name) + [v for v in given if v not in getattr(recorded, name)]
-              for name, given in (("methods", methods), ("objects", objects), ("seeds", seeds))}
+              for name, given in (("methods", methods), ("objects", objects), ("seeds", seeds), ("robots", robots))}
     if len(merged["seeds"]) > MAX_SEEDS:
         raise ValueError(f"--seeds would give the run {len(merged['seeds'])} seeds, more than {MAX_SEEDS}")
     resumed = replace(recorded, **merged, record=args.record)
     _check_backend(argparse.Namespace(record=args.record, engine=args.engine, backend=recorded.backend,
-                                      grip_force=args.grip_force))
+                                      grip_force=args.grip_force, robots=resumed.robots,
+                                      embodiment=recorded.embodiment))
+    check_grip_force(resumed.grip_force, resumed.robots)
     return resumed
 
 

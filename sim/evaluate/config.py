@@ -6,8 +6,8 @@ import functools
 import zlib
 from dataclasses import dataclass, field, replace
 
-from seggrasp.cell import DEFAULT_GRIP_FORCE
 from seggrasp.grasp.select import TOP_K
+from seggrasp.hands import ROBOTIQ_2F85, Hand
 from seggrasp.truth import REAL_DETECTORS, DetectorSpec, parse_detector
 from sim.evaluate.emulated import twin_objects
 
@@ -21,7 +21,11 @@ MAX_TOP_K = 100
 #: The most run seeds one run takes (each seed is a full pass over the objects: 1000 seeds of the full twin are
 #: weeks on a 2-core machine).
 MAX_SEEDS = 1000
-#: Settings a resumed run must share with the run it continues (methods, objects and seeds are merged instead).
+#: The robot systems a twin run can evaluate (`sim.cell.ROBOTS`, named here without importing PyBullet) and the one
+#: a run evaluates unless told (the quick CI profile's, and the real cell's: a UR5 with a 2F-85).
+ROBOT_NAMES = ("ur5", "panda")
+DEFAULT_ROBOT = "ur5"
+#: Settings a resumed run must share with the run it continues (methods, objects, seeds and robots are merged).
 RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts",
                "grip_force", "twin_gripper", "dry_run")
 #: The twin's gripper model (`sim.gripper`): "slides", the fingertips on force-limited slides traced from the
@@ -53,8 +57,10 @@ class RunConfig:
     quick: bool = False
     prompts: list[str] = field(default_factory=list)
     record: int = 0  # picture strips of the first `record` executed slots per method and object (twin only)
-    grip_force: float = DEFAULT_GRIP_FORCE  # N: the twin gripper's force and the sampler's torsion limit (twin only)
+    # N: the twin gripper's force and the sampler's torsion limit (twin only); None: each hand's default
+    grip_force: float | None = None
     twin_gripper: str = TWIN_GRIPPER  # the twin's gripper model ("" on the real cell)
+    robots: list[str] = field(default_factory=lambda: [DEFAULT_ROBOT])
 
     @property
     def uses_torch(self) -> bool:
@@ -76,6 +82,31 @@ class RunConfig:
     def at_seed(self, seed: int) -> "RunConfig":
         """The same run with the one seed `seed` (what a task of one (object, seed) pair runs)."""
         return replace(self, seeds=[int(seed)])
+
+    @property
+    def robot(self) -> str:
+        """The robot of a one-robot config (see `at_robot`)."""
+        if len(self.robots) != 1:
+            raise ValueError(f"this run has robots {self.robots}; take one with at_robot(robot)")
+        return self.robots[0]
+
+    def at_robot(self, robot: str) -> "RunConfig":
+        """The same run on the one robot system `robot`."""
+        return replace(self, robots=[robot])
+
+    @property
+    def hand(self) -> Hand:
+        """The hand of a one-robot config: the twin's (`sim.cell.ROBOTS`) or the real cell's 2F-85."""
+        if self.backend == "sim":
+            from sim.cell import ROBOTS
+
+            return ROBOTS[self.robot]
+        return ROBOTIQ_2F85
+
+    @property
+    def hand_grip_force(self) -> float:
+        """The grip force of a one-robot config: `grip_force`, or its hand's default."""
+        return self.hand.default_grip_force if self.grip_force is None else self.grip_force
 
     def detector_spec(self) -> DetectorSpec:
         """The run's detector (seeded with the run seed)."""

@@ -20,7 +20,7 @@ from typing import Callable, Iterable, Iterator
 import numpy as np
 
 from seggrasp.io import atomic_save_npz, atomic_write_bytes, atomic_write_json
-from sim.evaluate.config import RESUME_KEYS, RunConfig
+from sim.evaluate.config import DEFAULT_ROBOT, RESUME_KEYS, RunConfig
 
 LOG = logging.getLogger("sim.evaluate")
 RESULT_FILES = ("trials.jsonl", "segmentations.jsonl", "curves.jsonl")
@@ -164,16 +164,22 @@ def seed_of(record: dict) -> int:
     return int(record.get("seed", 0))
 
 
+def robot_of(record: dict) -> str:
+    """The robot system a record belongs to (records written before runs had several: the UR5)."""
+    return str(record.get("robot", DEFAULT_ROBOT))
+
+
 def trial_key(record: dict) -> tuple:
-    return (record["object_id"], seed_of(record), record["method"], record["prompt"], int(record["rank"]))
+    return (record["object_id"], seed_of(record), robot_of(record), record["method"], record["prompt"],
+            int(record["rank"]))
 
 
 def segmentation_key(record: dict) -> tuple:
-    return (record["object_id"], seed_of(record), record["method"])
+    return (record["object_id"], seed_of(record), robot_of(record), record["method"])
 
 
 def curve_key(record: dict) -> tuple:
-    return (record["object_id"], seed_of(record))
+    return (record["object_id"], seed_of(record), robot_of(record))
 
 
 def unique_records(records: Iterable[dict], key: Callable[[dict], tuple]) -> list[dict]:
@@ -213,8 +219,8 @@ _KINDS: dict[str, tuple[str, Callable[[object], bool]]] = {
     "list": ("an array", lambda v: isinstance(v, list)),
     "dict": ("an object", lambda v: isinstance(v, dict)),
 }
-#: The fields the harness reads from each result file's records, and their kinds (`seed`: absent in records
-#: written before runs had seeds, read as 0).
+#: The fields the harness reads from each result file's records, and their kinds (`seed` and `robot`: absent in
+#: records written before runs had seeds or robots, read as 0 and the UR5).
 RECORD_FIELDS: dict[str, dict[str, str]] = {
     "trials.jsonl": {"object_id": "str", "category": "str", "method": "str", "detector": "str", "prompt": "str",
                      "rank": "count", "executed": "bool", "reachable": "bool", "contacts_on_part": "bool?",
@@ -231,7 +237,8 @@ SET_ASIDE = "set-aside.jsonl"
 
 def malformed(name: str, record: dict) -> str:
     """What is wrong with the shape of a record of result file `name` ("" when nothing)."""
-    fields = dict(RECORD_FIELDS[name], **({"seed": "count"} if "seed" in record else {}))
+    fields = dict(RECORD_FIELDS[name], **{optional: kind for optional, kind in (("seed", "count"), ("robot", "str"))
+                                          if optional in record})
     if name == "trials.jsonl" and record.get("executed") is True:
         fields.update(EXECUTED_FIELDS)
     for field_name, kind in fields.items():
@@ -253,6 +260,8 @@ def foreign(name: str, record: dict, config: RunConfig) -> str:
         return f"object {object_id!r} is not one of the run's"
     if seed_of(record) not in config.seeds:
         return f"seed {seed_of(record)} is not one of the run's seeds"
+    if robot_of(record) not in config.robots:
+        return f"robot {robot_of(record)!r} is not one of the run's ({', '.join(config.robots)})"
     if method is not None and method not in config.methods:
         return f"method {method!r} is not one of the run's"
     if method != ORACLE and record["detector"] != config.detector_label:  # the oracle's labels are the truth's
@@ -356,7 +365,7 @@ def prepare_out(out: Path, config: RunConfig, resume: bool) -> RunConfig:
         changed = {k: (previous.get(k), getattr(config, k)) for k in RESUME_KEYS if previous.get(k) != getattr(config, k)}
         if changed:
             raise ValueError(f"cannot resume {out}: settings differ from the recorded run (recorded, given): {changed}")
-        merged = {name: list(previous.get(name) or []) for name in ("methods", "objects", "seeds")}
+        merged = {name: list(previous.get(name) or []) for name in ("methods", "objects", "seeds", "robots")}
         for name, values in merged.items():
             values += [v for v in getattr(config, name) if v not in values]
         config = type(config)(**dict(asdict(config), **merged))

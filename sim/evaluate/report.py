@@ -19,8 +19,15 @@ from seggrasp.method import RECIPES
 from seggrasp.metrics import mean_over_categories, quaternion_variance
 from sim.evaluate.config import RunConfig, prompts_of
 from sim.evaluate.plots import write_plots
-from sim.evaluate.records import curve_key, read_unique, segmentation_key, trial_key, writing
-from sim.evaluate.stats import CONFIDENCE, GRASP_METRICS, N_RESAMPLES, method_intervals, paired_differences
+from sim.evaluate.records import curve_key, read_unique, robot_of, segmentation_key, trial_key, writing
+from sim.evaluate.stats import (
+    CONFIDENCE,
+    GRASP_METRICS,
+    N_RESAMPLES,
+    method_intervals,
+    paired_differences,
+    system_averages,
+)
 
 ABLATION_METHODS = ("coarse", "multi", "opt", "geofusion", "anchored", "seggrasp")
 #: Paired differences the report gives (when both methods ran): SegGrasp against its coarse votes and GeoFusion.
@@ -28,7 +35,7 @@ DIFFERENCE_PAIRS = (("seggrasp", "coarse"), ("seggrasp", "geofusion"))
 #: The metrics of the interval tables: (summary key, column title); per-request (all-slot) ones first.
 INTERVAL_COLUMNS = (("miou", "mIoU"), ("part_selection_all_slots", "Part Sel."), ("success_all_slots", "Suc."),
                     ("success_top1", "top-1 Suc."), ("part_selection", "Part Sel. (executed)"),
-                    ("success", "Suc. (executed)"))
+                    ("success", "Suc. (executed)"), ("success_feasible", "Suc. (feasible requests)"))
 UNNAMED_FAILURE = "other"
 
 
@@ -54,6 +61,7 @@ def summarise(trials: list[dict], segmentations: list[dict], curves: list[dict],
             entry.update(grasp_metrics(rows))
             categories = sorted({r["category"] for r in rows})
             entry["categories"] = {c: grasp_metrics([r for r in rows if r["category"] == c]) for c in categories}
+            entry["infeasible_parts"] = infeasible_parts(rows)
         entry["detector"] = ", ".join(sorted({r["detector"] for r in rows + segs}))
         entry["seeds"] = sorted({int(r.get("seed", 0)) for r in rows + segs})
         entry["intervals"] = intervals[method]
@@ -88,6 +96,7 @@ def grasp_metrics(rows: list[dict]) -> dict:
         groups.setdefault((r["object_id"], r["prompt"]), []).append(np.array(r["T_world_grasp"])[:3, :3])
     variances = [quaternion_variance(np.stack(g)) for g in groups.values() if len(g) >= 2]
     failures = Counter(failure_name(r) for r in rows if not r.get("success"))
+    requests = {(r["object_id"], int(r.get("seed", 0)), r["prompt"]): r.get("infeasible") for r in rows}
     rates = {}
     for name, value in GRASP_METRICS.items():  # each a 0/1 value per counted record: its rate is the mean
         values = [v for v in map(value, rows) if v is not None]
@@ -99,7 +108,24 @@ def grasp_metrics(rows: list[dict]) -> dict:
         **rates,
         "sigma2": float(np.mean(variances)) if variances else None,
         "failures": dict(sorted(failures.items())),
+        "requests": len(requests),
+        "infeasible_requests": sum(v is True for v in requests.values()),
+        "judged_requests": sum(v is not None for v in requests.values()),
     }
+
+
+def infeasible_parts(rows: list[dict]) -> dict:
+    """{"object: part": {"requests": how many (seed) requests were judged infeasible, "reason": the first one's}}."""
+    parts: dict[str, dict] = {}
+    seen = set()
+    for r in rows:
+        request = (r["object_id"], int(r.get("seed", 0)), r["prompt"])
+        if r.get("infeasible") is not True or request in seen:
+            continue
+        seen.add(request)
+        entry = parts.setdefault(f"{r['object_id']}: {r['prompt']}", {"requests": 0, "reason": r.get("message", "")})
+        entry["requests"] += 1
+    return dict(sorted(parts.items()))
 
 
 def _summarise_curves(curves: list[dict]) -> dict:
@@ -147,14 +173,16 @@ def _table_two(methods: dict) -> list[str]:
             continue
         miou = m["miou"]["overall"] if "miou" in m else None
         rows.append([name, _fmt(miou), _fmt(m["part_selection_all_slots"]), _fmt(m["success_all_slots"]),
-                     _fmt(m["success_top1"]), _fmt(m["part_selection"]), _fmt(m["success"]), _fmt(m["sigma2"], 4),
-                     f"{m['executed']} / {m['trials']}", str(m["reachable"])])
+                     _fmt(m["success_top1"]), _fmt(m["part_selection"]), _fmt(m["success"]),
+                     _fmt(m["success_feasible"]), _fmt(m["sigma2"], 4), f"{m['executed']} / {m['trials']}",
+                     str(m["reachable"])])
     return ["## Table II — grasping", "",
             "Per request first: Part Sel. and Suc. over all top-k slots (a slot without a grasp is a miss) and top-1 "
             "Suc. (the first slot of every request); then Part Sel., Suc. and σ² over the executed grasps only "
-            "(the paper's definition).", "",
+            "(the paper's definition); Suc. over the requests the hand can hold (those judged feasible before the "
+            "robot moved).", "",
             *_table(["method", "mIoU", "Part Sel.", "Suc.", "top-1 Suc.", "Part Sel. (executed)", "Suc. (executed)",
-                     "σ² (executed)", "executed / slots", "reachable"], rows)]
+                     "Suc. (feasible)", "σ² (executed)", "executed / slots", "reachable"], rows)]
 
 
 def _table_three(methods: dict) -> list[str]:
@@ -249,48 +277,103 @@ def _interval_tables(summary: dict, seeds: Sequence[int]) -> list[str]:
     return lines + [""]
 
 
-def markdown_report(summary: dict, header: dict) -> str:
-    """The interval tables, Tables I-III, per-category results, failures and the threshold curve as Markdown."""
+def _infeasible(methods: dict) -> list[str]:
+    """The requests judged infeasible for the hand, per category and per part, from the oracle's records (every
+    method's requests are judged alike on the twin: from its labelled mesh), with the oracle's Suc. over the rest."""
+    name = "oracle" if "oracle" in methods else next((n for n, m in methods.items() if "categories" in m), None)
+    if name is None or "categories" not in methods[name] or not methods[name]["judged_requests"]:
+        return []
+    m = methods[name]
+    rows = [[c, str(v["requests"]), str(v["infeasible_requests"]), _fmt(v.get("success_feasible"))]
+            for c, v in m["categories"].items()]
+    rows.append(["all", str(m["requests"]), str(m["infeasible_requests"]), _fmt(m.get("success_feasible"))])
+    parts = [[part, str(v["requests"]), v["reason"]] for part, v in m.get("infeasible_parts", {}).items()]
+    lines = ["", "## Requests the hand cannot hold", "",
+             "Judged per request before the robot moves, from the labelled mesh: no candidate grasp has both contacts "
+             "on the part with the pads pressing on it (seggrasp/grasp/feasibility.py). Such a request is recorded "
+             f"as `infeasible`, not executed, and counts as failed in every Suc. but the feasible one ({name}'s "
+             "records).", "", *_table(["category", "requests", "infeasible", f"{name} Suc. (feasible requests)"], rows)]
+    if parts:
+        lines += ["", *_table(["object: part", "infeasible requests", "why (first one)"], parts)]
+    return lines
+
+
+def _body(summary: dict, seeds: Sequence[int]) -> list[str]:
+    """One system's sections: the interval tables, Tables I-III, per-category results, failures, the requests it
+    cannot hold and the threshold curve."""
     methods = summary["methods"]
-    seeds = header.get("seeds", [header.get("seed", 0)])
-    lines = [
-        "# SegGrasp evaluation", "",
-        f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
-        f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
-        f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
-        + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"
-           if "expected_trials" in header else ""), "",
-    ]
-    if any("intervals" in m for m in methods.values()):
-        lines += _interval_tables(summary, seeds)
+    lines = _interval_tables(summary, seeds) if any("intervals" in m for m in methods.values()) else []
     lines += _table_one(methods) + [""] + _table_two(methods) + _table_three(methods)
     lines += _curve_table(summary.get("curve") or {}) + _per_category(methods) + _failures(methods)
+    return lines + _infeasible(methods)
+
+
+def _average_table(average: dict, robots: Sequence[str]) -> list[str]:
+    confidence = f"{CONFIDENCE * 100:g} %"
+    columns = [(key, title) for key, title in INTERVAL_COLUMNS if key != "miou"]
+    rows = [[name, *(_with_interval(metrics.get(key)) for key, _ in columns)] for name, metrics in average.items()]
+    return [f"## Average over the robot systems ({', '.join(robots)}) — mean [{confidence} interval]", "",
+            "The paper reports Suc. as the average over its two systems. Each metric is the mean of the systems' own "
+            "values; the interval is the cluster bootstrap over objects, each drawn object bringing its records on "
+            "every system.", "", *_table(["method", *(title for _, title in columns)], rows), ""]
+
+
+def _header_line(header: dict, seeds: Sequence[int]) -> str:
+    robots = header.get("robots", [])
+    return (f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
+            + (f" · robots: {', '.join(robots)}" if robots else "")
+            + f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
+            f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
+            + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"
+               if "expected_trials" in header else ""))
+
+
+def markdown_report(summary: dict, header: dict) -> str:
+    """The report as Markdown: one system's sections, or for several systems their average and then each one's."""
+    seeds = header.get("seeds", [header.get("seed", 0)])
+    lines = ["# SegGrasp evaluation", "", _header_line(header, seeds), ""]
+    systems = summary.get("systems")
+    if not systems:
+        return "\n".join(lines + _body(summary, seeds)) + "\n"
+    lines += _average_table(summary["average"], list(systems))
+    for robot, system in systems.items():
+        lines += [f"# {robot}: {system['hand']}", "", *_body(system, seeds), ""]
     return "\n".join(lines) + "\n"
 
 
 def expected_trials(config: RunConfig) -> int:
     """How many trial records a complete run holds."""
     n_prompts = sum(len(prompts_of(config, object_id)) for object_id in config.objects)
-    return n_prompts * len(config.methods) * config.top_k * len(config.seeds)
+    return n_prompts * len(config.methods) * config.top_k * len(config.seeds) * len(config.robots)
 
 
 def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[dict]) -> dict:
-    """Read the result files back (first record per key) and write summary.json, summary.md and the plots."""
+    """Read the result files back (first record per key) and write summary.json, summary.md and the plots (one
+    system's summary; for several robot systems, each one's under `systems` and their average)."""
     wanted = set(config.objects)
 
-    def of_run(records: list[dict], by_method: bool = True) -> list[dict]:
+    def of_run(records: list[dict], robot: str, by_method: bool = True) -> list[dict]:
         return [r for r in records if r["object_id"] in wanted and int(r.get("seed", 0)) in config.seeds
-                and (not by_method or r["method"] in config.methods)]
+                and robot_of(r) == robot and (not by_method or r["method"] in config.methods)]
 
-    trials = of_run(read_unique(out / "trials.jsonl", trial_key))
-    segmentations = of_run(read_unique(out / "segmentations.jsonl", segmentation_key))
-    curves = of_run(read_unique(out / "curves.jsonl", curve_key), by_method=False)
-    summary = summarise(trials, segmentations, curves, config.methods)
+    files = {name: read_unique(out / name, key) for name, key in
+             (("trials.jsonl", trial_key), ("segmentations.jsonl", segmentation_key), ("curves.jsonl", curve_key))}
+    trials = {robot: of_run(files["trials.jsonl"], robot) for robot in config.robots}
+    segmentations = {robot: of_run(files["segmentations.jsonl"], robot) for robot in config.robots}
+    systems = {robot: dict(summarise(trials[robot], segmentations[robot],
+                                     of_run(files["curves.jsonl"], robot, by_method=False), config.methods),
+                           hand=config.at_robot(robot).hand.name)
+               for robot in config.robots}
+    if len(systems) == 1:
+        summary = next(iter(systems.values()))
+    else:
+        summary = {"systems": systems, "average": system_averages(trials, segmentations, config.methods)}
     header = {
         "detector": config.at_seed(config.seeds[0]).detector_spec().label, "embodiment": config.embodiment,
-        "backend": config.backend, "perceive": config.perceive, "seeds": config.seeds,
+        "backend": config.backend, "robots": config.robots, "perceive": config.perceive, "seeds": config.seeds,
         "decomposition_seed": config.decomposition_seed, "top_k": config.top_k, "n_objects": len(config.objects),
-        "wall_time_s": wall_time, "recorded_trials": len(trials), "expected_trials": expected_trials(config),
+        "wall_time_s": wall_time, "recorded_trials": sum(map(len, trials.values())),
+        "expected_trials": expected_trials(config),
     }
     summary["run"] = dict(header, methods=config.methods, objects=config.objects,
                           crashed_objects=sorted({c["object_id"] for c in crashes}),
@@ -300,5 +383,6 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
     with writing(out / "summary.md"):
         atomic_write_text(out / "summary.md", markdown_report(summary, header))
     with writing(out / "plots"):
-        write_plots(summary, out / "plots")
+        for robot, system in systems.items():
+            write_plots(system, out / "plots" if len(systems) == 1 else out / "plots" / robot)
     return summary

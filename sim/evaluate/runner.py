@@ -32,6 +32,7 @@ from sim.evaluate.records import (
     curve_key,
     error_message,
     read_unique,
+    robot_of,
     seed_of,
     segmentation_key,
     trial_key,
@@ -60,8 +61,13 @@ class Recorded:
     recorded, and whether its threshold curve is."""
 
     trials: list[dict] = field(default_factory=list)
-    segmented: set[str] = field(default_factory=set)
-    curve: bool = False
+    segmented: set[tuple[str, str]] = field(default_factory=set)  # (robot, method)
+    curves: set[str] = field(default_factory=set)  # robots
+
+    def of_robot(self, robot: str) -> "Recorded":
+        """What is recorded of one robot system: its trials, segmented methods and curve."""
+        return Recorded([r for r in self.trials if robot_of(r) == robot],
+                        {(b, m) for b, m in self.segmented if b == robot}, self.curves & {robot})
 
 
 @dataclass
@@ -103,41 +109,42 @@ def recorded_index(out: Path) -> Callable[[str, int], Recorded]:
     for record in read_unique(out / "trials.jsonl", trial_key):
         entry(record).trials.append(record)
     for record in read_unique(out / "segmentations.jsonl", segmentation_key):
-        entry(record).segmented.add(record["method"])
+        entry(record).segmented.add((robot_of(record), record["method"]))
     for record in read_unique(out / "curves.jsonl", curve_key):
-        entry(record).curve = True
+        entry(record).curves.add(robot_of(record))
     return lambda object_id, seed: index.get((object_id, int(seed)), Recorded())
 
 
-_CELL = None  # one cell per worker process
-_CELL_OBJECTS: dict[str, ObjectModel] = {}  # the twin objects this process's cell holds (those its tasks brought)
+_CELLS: dict[str, Cell] = {}  # this worker process's cells, one per robot system (the real cell: one)
+_CELL_OBJECTS: dict[str, ObjectModel] = {}  # the twin objects its twin cells hold (those its tasks brought)
 
 
 def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
-    """This process's cell: the real one, or a twin cell holding `model` (rebuilt with it added, once per object)."""
-    global _CELL
+    """This process's cell of `config`'s one robot: the real one, or a twin cell holding `model` (the twin cells
+    are rebuilt with it added, once per object)."""
     if config.backend == "real":
-        if _CELL is None:
-            _CELL = real_cell(config)  # hardware.RealCell, or the emulated cell wrapping it
-        return _CELL
-    if _CELL is None or model.object_id not in _CELL_OBJECTS:
+        if "real" not in _CELLS:
+            _CELLS["real"] = real_cell(config)  # hardware.RealCell, or the emulated cell wrapping it
+        return _CELLS["real"]
+    if model.object_id not in _CELL_OBJECTS:
+        objects = dict(_CELL_OBJECTS, **{model.object_id: model})
+        close_cell()
+        _CELL_OBJECTS.update(objects)
+    if config.robot not in _CELLS:
         from sim.cell import SimCell
         from sim.gripper import GripperSettings
 
-        objects = dict(_CELL_OBJECTS, **{model.object_id: model})
-        close_cell()
-        _CELL = SimCell(objects=list(objects.values()), embodiment=config.embodiment, seed=config.seed,
-                        gripper=GripperSettings(grip_force=config.grip_force))
-        _CELL_OBJECTS.update(objects)
-    return _CELL
+        _CELLS[config.robot] = SimCell(
+            objects=list(_CELL_OBJECTS.values()), embodiment=config.embodiment, seed=config.seed, robot=config.robot,
+            gripper=GripperSettings(grip_force=config.hand_grip_force, hand=config.hand))
+    return _CELLS[config.robot]
 
 
 def close_cell() -> None:
-    """Close this process's cell (if one was opened)."""
-    global _CELL
-    if _CELL is not None:
-        _CELL.close()
-        _CELL = None
+    """Close this process's cells (those opened)."""
+    for cell in _CELLS.values():
+        cell.close()
+    _CELLS.clear()
     _CELL_OBJECTS.clear()
 
 
@@ -147,12 +154,15 @@ def evaluate_object(task: ObjectTask) -> dict:
     sink = Sink(Path(task.out), collect=task.collect)
     head = {"object_id": task.object_id, "seed": task.seed}
     try:
-        config = task.config.at_seed(task.seed)
-        model, decomposition_cache = _object_of(task, config)
-        cell = _get_cell(config, model)
-        context, truth = subject_of(task.object_id, config, cell, model)
-        n_new = run_object(cell, context, truth, config, Path(task.out), parallel=task.parallel,
-                           recorded=task.recorded, sink=sink, decomposition_cache=decomposition_cache)
+        seeded = task.config.at_seed(task.seed)
+        model, decomposition_cache = _object_of(task, seeded)
+        n_new = 0
+        for robot in seeded.robots:
+            config = seeded.at_robot(robot)
+            cell = _get_cell(config, model)
+            context, truth = subject_of(task.object_id, config, cell, model)
+            n_new += run_object(cell, context, truth, config, Path(task.out), parallel=task.parallel,
+                                recorded=task.recorded, sink=sink, decomposition_cache=decomposition_cache)
         status = dict(head, ok=True, new_trials=n_new, seconds=time.time() - started)
     except OSError as exc:
         status = dict(head, ok=False, error=error_message(exc), traceback=traceback.format_exc(),
@@ -206,10 +216,12 @@ def run_object(
     sink: Sink | None = None,
     decomposition_cache: Path | None = None,
 ) -> int:
-    """Run every method's episode slots of one object (at `config`'s one seed) that `recorded` (default: what `out`
-    holds) lacks, handing new records to `sink` (default: appended to `out`); returns how many trials were added.
+    """Run every method's episode slots of one object (at `config`'s one seed, on its one robot) that `recorded`
+    (default: what `out` holds) lacks, handing new records to `sink` (default: appended to `out`); returns how many
+    trials were added.
     `decomposition_cache`: the writable decomposition cache (default the user's; the bundled one is searched too)."""
     recorded = recorded if recorded is not None else recorded_index(out)(context.object_id, config.seed)
+    recorded = recorded.of_robot(config.robot)
     sink = sink or Sink(out)
     settings = EpisodeSettings(
         seed=config.seed, top_k=config.top_k, perceive=config.perceive,
@@ -219,7 +231,7 @@ def run_object(
     )
     episode = Episode(
         cell, context, detector or config.object_detector(context.object_id), truth, settings,
-        generator=AntipodalSampler(AntipodalConfig(grip_force=config.grip_force)),
+        generator=AntipodalSampler(AntipodalConfig.for_hand(cell.hand, grip_force=config.hand_grip_force), cell.hand),
         vote_cache=VoteCache(out / "cache" / context.object_id),
         outcome_cache=_reusable_outcomes(recorded.trials, config),
     )
@@ -227,12 +239,12 @@ def run_object(
         raise ValueError(f"--record needs a cell that records picture strips; {type(cell).__name__} does not")
     hooks = _Hooks(episode, config, out, sink, {trial_key(r) for r in recorded.trials})
     for method in config.methods:
-        segment = method not in recorded.segmented and episode.truth_on_mesh is not None
+        segment = (config.robot, method) not in recorded.segmented and episode.truth_on_mesh is not None
         hooks.filmed = 0
         episode.run(method, skip=hooks.skip, before=hooks.before, on_record=hooks.on_record,
                     on_plan=hooks.on_plan if segment else None)
-    if not recorded.curve and episode.truth_on_mesh is not None and any(m != "oracle" for m in config.methods):
-        sink.add("curves.jsonl", dict(threshold_curve(episode), seed=config.seed))
+    if not recorded.curves and episode.truth_on_mesh is not None and any(m != "oracle" for m in config.methods):
+        sink.add("curves.jsonl", dict(threshold_curve(episode), seed=config.seed, robot=config.robot))
     return hooks.n_new
 
 
@@ -248,11 +260,12 @@ class _Hooks:
 
     def on_plan(self, plan: PartPlan) -> None:
         seg = segmentation_record(self.episode.context, plan.method, plan.detector, plan.labels, self.episode)
-        self.sink.add("segmentations.jsonl", dict(seg, seed=self.config.seed))
+        self.sink.add("segmentations.jsonl", dict(seg, seed=self.config.seed, robot=self.config.robot))
 
     def _key(self, slot: Slot) -> tuple:
         context = self.episode.context
-        return context.object_id, self.config.seed, slot.method, context.prompts[slot.prompt_index], slot.rank
+        return (context.object_id, self.config.seed, self.config.robot, slot.method, context.prompts[slot.prompt_index],
+                slot.rank)
 
     def skip(self, slot: Slot) -> bool:
         return self._key(slot) in self.done
@@ -260,7 +273,7 @@ class _Hooks:
     def before(self, slot: Slot) -> None:
         self.slot, self.strip = slot, None
         if self.filmed < self.config.record and slot.grasp is not None:
-            _, _, method, prompt, rank = self._key(slot)
+            _, _, _, method, prompt, rank = self._key(slot)
             self.strip = strip_path(self.out, method, self.episode.context.object_id, prompt, rank, self.config.seed)
             self.filmed += 1
             if self.episode.moves_cell(slot):
@@ -272,7 +285,7 @@ class _Hooks:
             if record.reused_outcome:  # the cell did not move for it: film the same grasp in the same scene
                 film(self.episode.cell, self.episode.context, self.slot, self.strip)
             caption_strip(self.strip, record)
-        self.sink.add("trials.jsonl", record.to_json())
+        self.sink.add("trials.jsonl", dict(record.to_json(), robot=self.config.robot))
         self.n_new += 1
 
 
@@ -352,17 +365,19 @@ def worker_init(uses_torch: bool = False) -> None:
 
 
 def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
-    """Whether `out` already holds every trial of the object's (one seed) run and, on the twin, every method's
-    segmentation and the threshold curve: then its task has nothing to add."""
+    """Whether `out` already holds every trial of the object's (one seed) run on every robot and, on the twin,
+    every method's segmentation and the threshold curve of each robot: then its task has nothing to add."""
     if not recorded.trials:  # a fresh (object, seed): nothing to compare, no asset to load
         return False
     prompts = prompts_of(config, object_id)
-    have = {(r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
-    if any((m, p, k) not in have for m in config.methods for p in prompts for k in range(config.top_k)):
+    have = {(robot_of(r), r["method"], r["prompt"], int(r["rank"])) for r in recorded.trials}
+    if any((b, m, p, k) not in have for b in config.robots for m in config.methods for p in prompts
+           for k in range(config.top_k)):
         return False
     if not twin_objects(config):
         return True
-    return set(config.methods) <= recorded.segmented and (recorded.curve or set(config.methods) <= {"oracle"})
+    return all({(b, m) for m in config.methods} <= recorded.segmented
+               and (b in recorded.curves or set(config.methods) <= {"oracle"}) for b in config.robots)
 
 
 def make_tasks(config: RunConfig, out: Path, parallel: bool, collect: bool = False) -> tuple[list[ObjectTask], list]:
@@ -447,6 +462,7 @@ def _run_pool(tasks: list[ObjectTask], workers: int, uses_torch: bool, on_status
 
 
 def record_extra(record: TrialRecord, config: RunConfig) -> None:
-    """What the harness adds to every trial record: the embodiment, backend and whether the mesh was perceived."""
+    """What the harness adds to every trial record: the embodiment, backend, whether the mesh was perceived and the
+    hand (the robot system is the record's own `robot` field)."""
     record.extra = {"embodiment": config.embodiment, "backend": config.backend, "perceive": config.perceive,
-                    "decomposition_seed": config.decomposition_seed}
+                    "decomposition_seed": config.decomposition_seed, "hand": config.hand.name}

@@ -35,6 +35,8 @@ GRASP_METRICS: dict[str, Callable[[dict], float | None]] = {
     "success_top1": lambda r: _bool_or_none(r["success"]) if r["rank"] == 0 else None,
     "part_selection": lambda r: _bool_or_none(r["contacts_on_part"]) if r["executed"] else None,
     "success": lambda r: _bool_or_none(r["success"]) if r["executed"] else None,
+    # over the requests the hand can hold (`infeasible` False: judged feasible before the robot moved)
+    "success_feasible": lambda r: _bool_or_none(r["success"]) if r.get("infeasible") is False else None,
 }
 #: Segmentation metrics (one value per segmentation record), averaged per category, then over categories.
 SEGMENTATION_METRICS: dict[str, Callable[[dict], float | None]] = {
@@ -135,6 +137,33 @@ def describe(a: MetricUnits, b: MetricUnits | None = None) -> dict | None:
         per_seed = {s: seeds_a[s] - seeds_b[s] for s in seeds_a}
     mean, low, high = bootstrap_interval(statistic, len(objects))
     return {"mean": mean, "ci_low": low, "ci_high": high, "per_seed": per_seed, "n_objects": len(objects)}
+
+
+def describe_average(systems: Sequence[MetricUnits]) -> dict | None:
+    """`describe` of the mean of one metric over several robot systems (the paper's Suc. over its two), over the
+    (object, seed) pairs every system has: a resample draws objects, and each drawn object brings its records on
+    every system. None when the systems share no pair."""
+    units = sorted(set.intersection(*(set(u.sums) for u in systems))) if systems else []
+    if not units:
+        return None
+    arrays = [u.arrays(units) for u in systems]
+    statistic = lambda w: np.mean([grouped_mean(num, den, group, w) for _, num, den, group in arrays], axis=0)  # noqa: E731
+    per_seed = [u.per_seed(units) for u in systems]
+    mean, low, high = bootstrap_interval(statistic, len(arrays[0][0]))
+    return {"mean": mean, "ci_low": low, "ci_high": high, "n_objects": len(arrays[0][0]),
+            "per_seed": {seed: float(np.mean([p[seed] for p in per_seed])) for seed in per_seed[0]}}
+
+
+def system_averages(trials: dict[str, list[dict]], segmentations: dict[str, list[dict]],
+                    methods: Sequence[str]) -> dict:
+    """{method: {metric: describe_average(...)}} over the robot systems `trials` holds ({robot: its records})."""
+    result = {}
+    for method in methods:
+        units = [_units(trials[robot], segmentations.get(robot, []), method) for robot in trials]
+        shared = set.intersection(*(set(u) for u in units)) if units else set()
+        described = {name: describe_average([u[name] for u in units]) for name in sorted(shared)}
+        result[method] = {name: d for name, d in described.items() if d is not None}
+    return result
 
 
 def _units(trials: list[dict], segmentations: list[dict], method: str) -> dict[str, MetricUnits]:
