@@ -21,9 +21,8 @@ MAX_TOP_K = 100
 #: The most run seeds one run takes (each seed is a full pass over the objects: 1000 seeds of the full twin are
 #: weeks on a 2-core machine).
 MAX_SEEDS = 1000
-#: The robot systems a twin run can evaluate (`sim.cell.ROBOTS`, named here without importing PyBullet) and the one
-#: a run evaluates unless told (the quick CI profile's, and the real cell's: a UR5 with a 2F-85).
-ROBOT_NAMES = ("ur5", "panda")
+#: The robot system (`sim.cell.ROBOTS`) a run evaluates unless told: the quick CI profile's, and the real cell's (a
+#: UR5 with a 2F-85).
 DEFAULT_ROBOT = "ur5"
 #: Settings a resumed run must share with the run it continues (methods, objects, seeds and robots are merged).
 RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts",
