@@ -49,8 +49,11 @@ MAX_SLIP = 0.010
 MAX_ROTATION_DEG = 15.0
 
 # Why a trial failed. The cell names the physical failures; the harness adds `no_grasp` (the method planned no
-# grasp for the slot) and `wrong_part` (held, but on another part than the prompted one). "" means success.
-FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp")
+# grasp for the slot), `wrong_part` (held, but on another part than the prompted one) and `infeasible` (no grasp
+# candidate of the cell's hand holds the part, judged before the robot moves: seggrasp.grasp.feasibility; the
+# trial's message says why). "" means success.
+FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp",
+            "infeasible")
 
 
 @dataclass

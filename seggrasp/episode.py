@@ -12,6 +12,11 @@ Scoring, when there is ground truth: a trial's `contacts_on_part` says whether b
 faces whose true label is the prompt (Part Sel.); `touched_on_part` whether the true part carries most of what the
 pads touched; `success` = lifted and touched the part (contacts as planned when the backend cannot observe them);
 `failure` names why a trial failed (`seggrasp.cell.FAILURES`).
+
+Before any slot moves the robot, each request is judged (`seggrasp.grasp.feasibility`): can any grasp candidate of
+the cell's hand hold the part (contacts on it, pads pressing on it)? The part is the true one when there is ground
+truth (the twin), else the plan's selection. The slots of an infeasible request are not executed: their records
+say `failure="infeasible"` and why in `message`.
 """
 
 from __future__ import annotations
@@ -28,6 +33,8 @@ from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
+from seggrasp.grasp.antipodal import AntipodalConfig
+from seggrasp.grasp.feasibility import Feasibility, judge_requests
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.select import TOP_K
 from seggrasp.hands import Hand
@@ -97,7 +104,8 @@ class VoteStore(Protocol):
 class Slot(NamedTuple):
     """One trial slot: the `rank`-th grasp a method chose for prompt `prompt_index` (world frame; None when the
     method had fewer grasps on the part than slots) among `n_candidates`. `planned`: the grasp's contacts were
-    planned (NaN ones touch nothing); False for a grasp given from outside, which has none to score."""
+    planned (NaN ones touch nothing); False for a grasp given from outside, which has none to score.
+    `feasibility`: the request's judgement (None: not judged); an infeasible request's slots have no grasp."""
 
     method: str
     detector: str
@@ -106,6 +114,7 @@ class Slot(NamedTuple):
     grasp: GraspSet | None
     n_candidates: int
     planned: bool = True
+    feasibility: Feasibility | None = None
 
 
 @dataclass
@@ -137,6 +146,7 @@ class TrialRecord:
     reused_outcome: bool = False
     message: str = ""
     failure: str = ""
+    infeasible: bool | None = None  # the request was judged infeasible (None: not judged, e.g. a gym action)
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -260,6 +270,7 @@ class Episode:
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
+        self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
         self._scene_fresh = False  # the cell's scene is as `reset` left it (no grasp executed since)
 
@@ -349,11 +360,43 @@ class Episode:
         return [prompt_index(self.context.prompts, t, "prompts") for t in targets]
 
     def slots(self, plan: PartPlan, targets: Sequence[str] | None = None) -> list[Slot]:
-        """The plan's top-k slots for each target prompt."""
+        """The plan's top-k slots for each target prompt; those of a request `feasibility` judges infeasible have
+        no grasp (and no candidates) and carry the judgement."""
         indices = self.target_indices(targets)
+        judged = self.feasibility(plan, indices)
+        feasible = [k for k in indices if judged[k].feasible]
         grasps = GraspSet.empty() if plan.own_grasps is not None else self.grasps()
-        return plan_slots(plan, grasps, self.observation, len(self.context.prompts), indices, self.settings.top_k,
-                          self.reaches, self.footprint)
+        planned = plan_slots(plan, grasps, self.observation, len(self.context.prompts), feasible, self.settings.top_k,
+                             self.reaches, self.footprint)
+        slots = []
+        for k in indices:
+            if judged[k].feasible:
+                slots += [s._replace(feasibility=judged[k]) for s in planned if s.prompt_index == k]
+            else:
+                slots += [Slot(plan.method, plan.detector, k, rank, None, 0, feasibility=judged[k])
+                          for rank in range(self.settings.top_k)]
+        return slots
+
+    def feasibility(self, plan: PartPlan, indices: Sequence[int]) -> dict[int, Feasibility]:
+        """Per prompt index, whether the cell's hand can hold the part with one of the episode's grasp candidates
+        (`seggrasp.grasp.feasibility`): the true part when there is ground truth (judged once per prompt), else the
+        part `plan` selects grasps on."""
+        o = self.observation
+        plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
+        config = self.generator.config if isinstance(self.generator, AntipodalSampler) else \
+            AntipodalConfig.for_hand(self.hand)
+
+        def judge(requests: list[int], labels: np.ndarray) -> dict[int, Feasibility]:
+            if not requests:
+                return {}
+            return judge_requests(requests, self.context.prompts, self.hand, config, o.mesh, labels, self.grasps(),
+                                  self.footprint, plane)
+
+        if self.truth_on_mesh is None:
+            return judge(list(indices), plan.selection_labels)
+        missing = [k for k in dict.fromkeys(indices) if k not in self._true_feasibility]
+        self._true_feasibility.update(judge(missing, self.truth_on_mesh))
+        return {k: self._true_feasibility[k] for k in indices}
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
         """Whether the cell would execute this grasp (`Cell.check_reach`; remembered per grasp). A cell that models
@@ -410,6 +453,14 @@ class Episode:
             prompt=context.prompts[slot.prompt_index], prompt_index=slot.prompt_index, rank=slot.rank,
             seed=self.settings.seed, scene_seed=context.scene_seed, n_candidates=slot.n_candidates, executed=False,
         )
+        if slot.feasibility is not None:
+            record.infeasible = not slot.feasibility.feasible
+        if record.infeasible:
+            record.contacts_on_part = False if self.truth is not None else None
+            record.success = False
+            record.message = slot.feasibility.reason
+            record.failure = "infeasible"
+            return record
         if slot.grasp is None:
             record.contacts_on_part = record.success = False if self.truth is not None else None
             record.message = "no grasp on the selected part"

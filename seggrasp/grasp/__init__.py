@@ -1,7 +1,8 @@
 """Grasps: the `GraspSet` container, the `GraspGenerator` protocol, the antipodal sampler, a learned-generator
-adapter slot and part assignment / per-prompt selection."""
+adapter slot, part assignment / per-prompt selection and whether a hand can hold a part at all (`feasibility`)."""
 
 from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
+from seggrasp.grasp.feasibility import Feasibility, judge_requests
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator, PointCloudGraspModel
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
@@ -10,6 +11,7 @@ from seggrasp.grasp.types import ROBOTIQ_2F85, GraspGenerator, GraspSet, Hand
 __all__ = [
     "AntipodalConfig",
     "AntipodalSampler",
+    "Feasibility",
     "GraspGenerator",
     "GraspPrediction",
     "GraspSet",
@@ -20,6 +22,7 @@ __all__ = [
     "ROBOTIQ_2F85",
     "assign_parts",
     "contact_faces",
+    "judge_requests",
     "select_on_part",
     "select_per_prompt",
 ]

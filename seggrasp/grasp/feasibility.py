@@ -1,0 +1,141 @@
+"""Whether a hand can hold a prompted part at all, decided before the robot moves, and why not.
+
+A request is feasible when one of the episode's grasp candidates (the sampler's set, which already keeps only
+poses whose width fits the stroke and whose fingers, palm and wrist clear the table and the object) has both
+planned contacts on faces of the part AND pads that each press on the part over at least the footprint's
+`min_share` (`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). When none
+does, the part's geometry names why, in one sentence with measured numbers, the first that applies of:
+
+1. the part has no face (nothing labelled as it);
+2. candidates touch it, but their pads press on it less than `min_share`;
+3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
+   `pinch_min_band`);
+4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
+   (a blade resting on its handle: the vertical chords down through it, `tallest_side`);
+5. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
+   the widest contact distance the hand closes on (`Hand.stroke` - `AntipodalConfig.width_margin`);
+6. otherwise: no collision-free pose of the hand closes on it.
+
+The geometry is measured only for an infeasible request; a feasible one costs one footprint check of its best
+candidate.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+from seggrasp.grasp.antipodal import RAY_EPSILON, AntipodalConfig, _opposite_contacts
+from seggrasp.grasp.footprint import PadFootprint
+from seggrasp.grasp.select import UNASSIGNED, assign_parts, select_per_prompt
+from seggrasp.grasp.types import GraspSet
+from seggrasp.hands import Hand
+
+#: Points sampled on a part to measure its narrowest section (seeded: the same part gives the same sentence).
+SECTION_SAMPLES = 2000
+
+
+@dataclass(frozen=True)
+class Feasibility:
+    """The judgement of one request: `feasible`, and when not, `reason`, one sentence naming why."""
+
+    feasible: bool
+    reason: str = ""
+
+
+def judge_requests(
+    requests: Sequence[int], prompts: Sequence[str], hand: Hand, config: AntipodalConfig, mesh: trimesh.Trimesh,
+    face_labels: np.ndarray, grasps: GraspSet, footprint: PadFootprint, table_plane: np.ndarray,
+) -> dict[int, Feasibility]:
+    """Per prompt index in `requests`, whether a candidate of `grasps` (object frame, as `mesh`) holds the faces
+    labelled with it (`face_labels`, one prompt index per face), judged for `hand` with the sampler's `config` and
+    the hand's `footprint`; `table_plane` (a, b, c, d) is the table top in the object frame, normal up."""
+    labels = np.asarray(face_labels, dtype=np.int64)
+    requests = list(requests)
+    # one label per request, so the selection looks at the requested parts only
+    local = np.full(len(labels), UNASSIGNED, dtype=np.int64)
+    for j, k in enumerate(requests):
+        local[labels == k] = j
+    best = select_per_prompt(grasps, mesh, local, len(requests), top_k=1, footprint=footprint)
+    surface = footprint.on(mesh)
+    parts: np.ndarray | None = None  # each candidate's part, found once the first request is infeasible
+    judged = {}
+    for j, k in enumerate(requests):
+        is_part = (local == j).astype(np.float64)[:, None]
+        if len(best[j]) and (surface.pad_means(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
+            judged[k] = Feasibility(True)
+        else:
+            parts = assign_parts(grasps, mesh, local) if parts is None else parts
+            on_part = np.flatnonzero(parts == j)
+            share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
+            judged[k] = Feasibility(False, _reason(prompts[k], local == j, share, hand, config, mesh, footprint,
+                                                   table_plane))
+    return judged
+
+
+def _reason(
+    name: str, faces: np.ndarray, share: np.ndarray | None, hand: Hand, config: AntipodalConfig,
+    mesh: trimesh.Trimesh, footprint: PadFootprint, table_plane: np.ndarray,
+) -> str:
+    """The sentence for an infeasible part (module docstring); `share`: per candidate with both contacts on the
+    part, the smaller share of the part under its two pads (None: no such candidate)."""
+    if not faces.any():
+        return f"{name}: no face of the mesh is labelled as it"
+    if share is not None:
+        return (f"{name}: the pads press on it for at most {100 * share.max():.0f} % of their footprint; "
+                f"they need {100 * footprint.min_share:.0f} %")
+    vertices = mesh.vertices[np.unique(mesh.faces[faces])]
+    height = float((vertices @ table_plane[:3] + table_plane[3]).max())
+    pinch = config.pinch_table_clearance + config.pinch_min_band
+    if height < pinch:
+        return (f"{name}: stands at most {1000 * height:.1f} mm above the table; a fingertip pinch needs "
+                f"{1000 * pinch:.1f} mm (fingertips {1000 * config.pinch_table_clearance:.1f} mm above the table, "
+                f"{1000 * config.pinch_min_band:.1f} mm of pad on the part)")
+    side = tallest_side(mesh, faces, table_plane, config.pinch_table_clearance)
+    if side < config.pinch_min_band:
+        return (f"{name}: lies flat, at most {1000 * side:.1f} mm of it above a pinch's fingertips "
+                f"({1000 * config.pinch_table_clearance:.1f} mm above the table) wherever a pad would touch its "
+                f"side; a fingertip pinch needs {1000 * config.pinch_min_band:.1f} mm of pad on the part")
+    widest = hand.stroke - config.width_margin
+    section = narrowest_section(mesh, faces, config)
+    if section is not None and section > widest:
+        return (f"{name}: narrowest section {1000 * section:.0f} mm, wider than the {1000 * widest:.0f} mm the "
+                f"{hand.name} closes on ({1000 * hand.stroke:.0f} mm stroke less {1000 * config.width_margin:.0f} mm)")
+    return f"{name}: no collision-free pose of the {hand.name} closes on it"
+
+
+def tallest_side(mesh: trimesh.Trimesh, faces: np.ndarray, table_plane: np.ndarray, clearance: float) -> float:
+    """The most of the faces `faces` (boolean mask) a straight-down pinch's pads can touch (m): over points of its
+    upward-facing faces, the vertical chord down through the mesh to the next surface (the table where there is
+    none), above the fingertips `clearance` over the table."""
+    up = np.asarray(table_plane[:3], dtype=np.float64)
+    sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
+    upward = faces & (sign * np.asarray(mesh.face_normals) @ up > 0.0)
+    if not upward.any():
+        return 0.0
+    points, _ = trimesh.sample.sample_surface(mesh, SECTION_SAMPLES, face_weight=mesh.area_faces * upward, seed=0)
+    top = points @ up + table_plane[3]
+    bottom = np.zeros(len(points))
+    origins = points - RAY_EPSILON * up
+    hits, ray, _ = mesh.ray.intersects_location(origins, np.broadcast_to(-up, points.shape), multiple_hits=False)
+    bottom[ray] = np.maximum(hits @ up + table_plane[3], 0.0)
+    return float(np.max(top - np.maximum(bottom, clearance)).clip(min=0.0))
+
+
+def narrowest_section(mesh: trimesh.Trimesh, faces: np.ndarray, config: AntipodalConfig) -> float | None:
+    """The shortest chord (m) from a point of the faces `faces` (boolean mask) along its inward normal to the
+    surface it meets, among chords whose ends both lie inside the friction cone (`config.friction_coefficient`)
+    and that are at least `config.min_width` long; None when there is none."""
+    sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
+    normals = sign * np.asarray(mesh.face_normals)
+    points, index = trimesh.sample.sample_surface(mesh, SECTION_SAMPLES, face_weight=mesh.area_faces * faces, seed=0)
+    p, q, n_p, n_q = _opposite_contacts(mesh, points, normals[index], normals)
+    width = np.linalg.norm(q - p, axis=1)
+    axis = (q - p) / np.maximum(width, 1e-12)[:, None]
+    cone = np.cos(np.arctan(config.friction_coefficient))
+    ok = (width >= config.min_width) & (np.einsum("ij,ij->i", axis, -n_p) >= cone) & \
+        (np.einsum("ij,ij->i", axis, n_q) >= cone)
+    return float(width[ok].min()) if ok.any() else None

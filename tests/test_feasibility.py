@@ -1,0 +1,122 @@
+"""Requests no gripper can hold are named before the robot moves (seggrasp.grasp.feasibility, Episode)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from seggrasp.cell import FAILURES, GraspOutcome
+from seggrasp.episode import Episode, EpisodeContext, table_plane_in_object_frame
+from seggrasp.grasp import AntipodalSampler
+from seggrasp.grasp.antipodal import AntipodalConfig
+from seggrasp.grasp.feasibility import Feasibility, judge_requests
+from seggrasp.grasp.footprint import PadFootprint
+from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, Hand
+from seggrasp.truth import GroundTruth
+
+
+def body_with(part: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A 60 x 50 x 40 mm box body on the table (z = 0) with `part` beside it: the mesh and its labels (body 0,
+    part 1)."""
+    body = trimesh.creation.box([0.06, 0.05, 0.04])
+    body.apply_translation([0.0, 0.0, 0.02])
+    mesh = trimesh.util.concatenate([body, part])
+    return mesh, np.r_[np.zeros(len(body.faces), dtype=np.int64), np.ones(len(part.faces), dtype=np.int64)]
+
+
+def box_part(size: tuple[float, float, float]) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A box part of `size` (m) lying on the table against the body's +x side."""
+    part = trimesh.creation.box(size)
+    part.apply_translation([0.03 + size[0] / 2, 0.0, size[2] / 2])
+    return body_with(part)
+
+
+def judge(mesh: trimesh.Trimesh, labels: np.ndarray, hand: Hand) -> Feasibility:
+    """The part's (label 1) judgement for `hand` from the hand's own sampler's candidates."""
+    config = AntipodalConfig.for_hand(hand)
+    plane = table_plane_in_object_frame(mesh, np.eye(4))
+    grasps = AntipodalSampler(config, hand).generate(mesh, seed=0, table_plane=plane)
+    return judge_requests([1], ["body", "part"], hand, config, mesh, labels, grasps, PadFootprint(gripper=hand),
+                          plane)[1]
+
+
+@pytest.fixture(scope="module")
+def plate() -> tuple[trimesh.Trimesh, np.ndarray]:
+    return box_part((0.06, 0.02, 0.0015))
+
+
+def test_a_thin_plate_lying_flat_is_infeasible_and_the_reason_names_its_height_and_the_pinch(plate) -> None:
+    verdict = judge(*plate, ROBOTIQ_2F85)
+    config = AntipodalConfig.for_hand(ROBOTIQ_2F85)
+    pinch = 1000 * (config.pinch_table_clearance + config.pinch_min_band)
+    assert not verdict.feasible
+    assert verdict.reason.startswith("part: stands at most 1.5 mm above the table")
+    assert f"a fingertip pinch needs {pinch:.1f} mm" in verdict.reason
+
+
+def test_a_part_wider_than_the_franka_hand_s_stroke_is_infeasible_for_it_and_feasible_for_the_2f85() -> None:
+    cube = box_part((0.078, 0.078, 0.078))  # within the 2F-85's 80 mm, beyond the Franka Hand's 75 mm
+    assert judge(*cube, ROBOTIQ_2F85) == Feasibility(True)
+    franka = judge(*cube, FRANKA_HAND)
+    assert not franka.feasible
+    assert franka.reason == ("part: narrowest section 78 mm, wider than the 75 mm the franka_hand closes on "
+                             "(80 mm stroke less 5 mm)")
+
+
+def test_an_ordinary_handle_is_feasible() -> None:
+    assert judge(*box_part((0.10, 0.02, 0.02)), ROBOTIQ_2F85).feasible
+
+
+def test_a_collar_narrower_than_the_pads_is_infeasible_and_the_reason_names_the_share_they_press_on() -> None:
+    handle = trimesh.creation.box([0.10, 0.02, 0.02])
+    handle.apply_translation([0.08, 0.0, 0.02])
+    mesh, _ = body_with(handle.subdivide_to_size(0.002))
+    collar = (np.abs(mesh.triangles_center[:, 0] - 0.08) < 0.003).astype(np.int64)  # 6 mm of the 100 mm handle
+    verdict = judge(mesh, collar, ROBOTIQ_2F85)
+    assert not verdict.feasible
+    prefix, suffix = "part: the pads press on it for at most ", " % of their footprint; they need 50 %"
+    assert verdict.reason.startswith(prefix) and verdict.reason.endswith(suffix)
+    assert 0 < int(verdict.reason[len(prefix):-len(suffix)]) < 50
+
+
+class FixedMeshCell:
+    """A cell on a fixed mesh (world = object frame) that reaches every grasp and lifts it; it counts executions."""
+
+    hand = ROBOTIQ_2F85
+    models_scene = True
+
+    def __init__(self, mesh: trimesh.Trimesh) -> None:
+        self.mesh, self.executed = mesh, 0
+
+    def reset(self, seed=None, object_id=None) -> None:
+        pass
+
+    def object_mesh(self):
+        return self.mesh, np.eye(4)
+
+    def check_reach(self, T_world_grasp, width) -> str:
+        return ""
+
+    def execute(self, T_world_grasp, width) -> GraspOutcome:
+        self.executed += 1
+        return GraspOutcome(True, True, 0.1, contacts_observed=False)
+
+
+def test_an_infeasible_request_is_recorded_without_moving_the_cell_and_a_feasible_one_executes(plate) -> None:
+    mesh, labels = plate
+    cell = FixedMeshCell(mesh)
+    episode = Episode(cell, EpisodeContext("plate", "test", ["body", "plate"], scene_seed=0), None,
+                      GroundTruth(mesh, labels))
+    before = []
+    records = episode.run("oracle", ["plate"], before=before.append)
+    assert cell.executed == 0 and len(records) == episode.settings.top_k
+    assert all(slot.grasp is None and not episode.moves_cell(slot) for slot in before)
+    assert "infeasible" in FAILURES
+    for record in records:
+        assert record.failure == "infeasible" and record.infeasible is True
+        assert not record.executed and record.success is False and record.contacts_on_part is False
+        assert record.message.startswith("plate: stands at most 1.5 mm above the table")
+    body = episode.run("oracle", ["body"])
+    assert cell.executed == sum(r.executed for r in body) > 0
+    assert all(r.infeasible is False and r.failure != "infeasible" for r in body)
