@@ -66,10 +66,13 @@ def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, 
         assert len(r.T_world_grasp) == 4 and len(r.quaternion_xyzw) == 4
     assert sum(r.success for r in side) >= 2
     assert side[0].grasp_score >= side[1].grasp_score >= side[2].grasp_score
-    # both contacts of an antipodal grasp can never lie on the flat top face: nothing to execute
+    # both contacts of an antipodal grasp can never lie on the flat top face: judged infeasible, nothing to execute
     for r in top:
         assert not r.executed and r.n_candidates == 0 and r.success is False and r.contacts_on_part is False
-        assert r.failure == "no_grasp"
+        assert r.failure == "infeasible" and r.infeasible is True
+        assert r.message == "top: narrowest section 110 mm, wider than the 80 mm the robotiq_2f85 closes on (85 mm " \
+            "stroke less 5 mm)"
+    assert all(r.infeasible is False for r in side)
     assert all(r.failure == "" for r in side if r.success)
 
 
