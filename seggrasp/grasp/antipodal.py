@@ -262,7 +262,7 @@ class AntipodalSampler:
         friction cones; None when there is none."""
         cfg = self.config
         points, faces = _surface_samples(mesh, cfg, com, rng)
-        p, q, n_p, n_q = _opposite_contacts(mesh, points, face_normals[faces], face_normals)
+        p, q, n_p, n_q = opposite_contacts(mesh, points, face_normals[faces], face_normals)
         width = np.linalg.norm(q - p, axis=1)
         ok = (width >= cfg.min_width) & (width <= self.gripper.stroke - cfg.width_margin)
         axis = np.zeros_like(p)
@@ -406,7 +406,7 @@ def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
     return plane / norm
 
 
-def _opposite_contacts(
+def opposite_contacts(
     mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray, face_normals: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """First hit of a ray from each point along its inward normal: (p, q, n_p, n_q) for the rays that hit."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from seggrasp.grasp.antipodal import RAY_EPSILON, AntipodalConfig, _opposite_contacts
+from seggrasp.grasp.antipodal import RAY_EPSILON, AntipodalConfig, opposite_contacts
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.select import UNASSIGNED, assign_parts, select_per_prompt
 from seggrasp.grasp.types import GraspSet
@@ -132,7 +132,7 @@ def narrowest_section(mesh: trimesh.Trimesh, faces: np.ndarray, config: Antipoda
     sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
     normals = sign * np.asarray(mesh.face_normals)
     points, index = trimesh.sample.sample_surface(mesh, SECTION_SAMPLES, face_weight=mesh.area_faces * faces, seed=0)
-    p, q, n_p, n_q = _opposite_contacts(mesh, points, normals[index], normals)
+    p, q, n_p, n_q = opposite_contacts(mesh, points, normals[index], normals)
     width = np.linalg.norm(q - p, axis=1)
     axis = (q - p) / np.maximum(width, 1e-12)[:, None]
     cone = np.cos(np.arctan(config.friction_coefficient))
