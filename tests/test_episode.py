@@ -54,7 +54,7 @@ def test_table_plane_passes_through_the_lowest_point() -> None:
 
 
 @pytest.mark.slow
-def test_oracle_episode_lifts_by_the_side_and_reports_no_grasp_on_the_top(cell, cylinder) -> None:
+def test_oracle_episode_lifts_by_the_side_and_judges_the_top_infeasible(cell, cylinder) -> None:
     records = run_episode(cell, cylinder, "oracle", targets=["side", "top"], top_k=3, seed=0)
     assert [(r.prompt, r.rank) for r in records] == [("side", 0), ("side", 1), ("side", 2), ("top", 0), ("top", 1),
                                                       ("top", 2)]
