@@ -99,3 +99,16 @@ def test_a_run_on_both_systems_records_each_and_resumes_with_a_robot_added(tmp_p
     assert main(["--resume", "--out", str(out)]) == 0  # complete: nothing runs again, nothing is counted twice
     assert "4/4 trials recorded" in capsys.readouterr().out
     assert len((out / "trials.jsonl").read_text().splitlines()) == 4
+
+
+def test_a_record_of_a_robot_the_run_lacks_is_set_aside_and_an_old_record_is_the_ur5_s() -> None:
+    from sim.evaluate.config import RunConfig
+    from sim.evaluate.records import foreign, robot_of
+
+    record = {"object_id": "mug_classic", "method": "oracle", "seed": 0, "detector": "ground-truth",
+              "prompt": "handle", "rank": 0}
+    ur5_run = RunConfig(["oracle"], ["mug_classic"], embodiment="arm")
+    assert robot_of(record) == "ur5" and foreign("trials.jsonl", record, ur5_run) == ""
+    panda = dict(record, robot="panda")
+    assert foreign("trials.jsonl", panda, ur5_run) == "robot 'panda' is not one of the run's (ur5)"
+    assert foreign("trials.jsonl", panda, RunConfig(["oracle"], ["mug_classic"], robots=["ur5", "panda"])) == ""
