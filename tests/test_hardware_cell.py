@@ -73,6 +73,8 @@ def rig(tmp_path):
 
 def test_from_config_connects_everything(rig):
     assert isinstance(rig.cell, Cell)
+    # the episode plans for the cell's hand: the 2F-85 with the stroke measured on this one
+    assert rig.cell.hand.name == "robotiq_2f85" and rig.cell.hand.stroke == rig.config.gripper.stroke
     assert rig.ur.commands[0][0] == "setTcp"
     assert rig.server.vars["STA"] == 3  # activated
     assert all(p.started for p in rig.pipelines.values()) and len(rig.pipelines) == 2
