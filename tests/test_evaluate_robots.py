@@ -112,3 +112,15 @@ def test_a_record_of_a_robot_the_run_lacks_is_set_aside_and_an_old_record_is_the
     panda = dict(record, robot="panda")
     assert foreign("trials.jsonl", panda, ur5_run) == "robot 'panda' is not one of the run's (ur5)"
     assert foreign("trials.jsonl", panda, RunConfig(["oracle"], ["mug_classic"], robots=["ur5", "panda"])) == ""
+
+
+def test_each_robot_s_picture_strip_has_its_own_file() -> None:
+    from pathlib import Path
+
+    from sim.evaluate.strips import strip_path
+
+    out = Path("run")
+    ur5 = strip_path(out, "oracle", "mug_classic", "handle", 0, seed=2)
+    assert ur5 == out / "strips" / "oracle-mug_classic-handle-0-seed2.png"  # as before robots were named
+    assert strip_path(out, "oracle", "mug_classic", "handle", 0, seed=2, robot="panda") == \
+        out / "strips" / "oracle-mug_classic-handle-0-seed2-panda.png"

@@ -274,7 +274,8 @@ class _Hooks:
         self.slot, self.strip = slot, None
         if self.filmed < self.config.record and slot.grasp is not None:
             _, _, _, method, prompt, rank = self._key(slot)
-            self.strip = strip_path(self.out, method, self.episode.context.object_id, prompt, rank, self.config.seed)
+            self.strip = strip_path(self.out, method, self.episode.context.object_id, prompt, rank, self.config.seed,
+                                    self.config.robot)
             self.filmed += 1
             if self.episode.moves_cell(slot):
                 self.episode.cell.record_next(self.strip)

@@ -10,21 +10,25 @@ from pathlib import Path
 from seggrasp.cell import Cell
 from seggrasp.episode import EpisodeContext, Slot, TrialRecord
 from seggrasp.io import atomic_write_bytes
+from sim.evaluate.config import DEFAULT_ROBOT
 from sim.evaluate.records import writing
 
 #: The most bytes of a prompt a strip's file name holds (the rest is replaced by a digest).
 MAX_PROMPT_IN_NAME = 80
 
 
-def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int, seed: int = 0) -> Path:
+def strip_path(out: Path, method: str, object_id: str, prompt: str, rank: int, seed: int = 0,
+               robot: str = DEFAULT_ROBOT) -> Path:
     """Where `--record` writes the picture strip of one slot: OUT/strips/<method>-<object>-<prompt>-<rank>.png
-    (seed 0), ...-<rank>-seed<seed>.png for another seed; a prompt of more than `MAX_PROMPT_IN_NAME` characters is
-    cut and given a digest of the whole, so the name stays within what a file system takes."""
+    (seed 0, the UR5), ...-<rank>-seed<seed>.png for another seed, ...-<robot>.png on another robot system; a
+    prompt of more than `MAX_PROMPT_IN_NAME` characters is cut and given a digest of the whole, so the name stays
+    within what a file system takes."""
     safe_prompt = "".join(c if c.isalnum() or c in "_." else "_" for c in prompt)
     if len(safe_prompt.encode("utf-8")) > MAX_PROMPT_IN_NAME:
         digest = hashlib.sha1(prompt.encode("utf-8")).hexdigest()[:10]
         safe_prompt = f"{safe_prompt.encode('utf-8')[:MAX_PROMPT_IN_NAME].decode('utf-8', 'ignore')}_{digest}"
-    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}{f'-seed{seed}' if seed else ''}.png"
+    suffix = (f"-seed{seed}" if seed else "") + (f"-{robot}" if robot != DEFAULT_ROBOT else "")
+    return out / "strips" / f"{method}-{object_id}-{safe_prompt}-{rank}{suffix}.png"
 
 
 def film(cell: Cell, context: EpisodeContext, slot: Slot, path: Path) -> None:
