@@ -72,7 +72,8 @@ def test_pad_contacts_of_a_box_and_of_an_empty_sweep() -> None:
     cloud, _ = trimesh.sample.sample_surface(mesh, 4000, seed=1)
     poses = np.repeat(np.eye(4)[None], 2, axis=0)
     poses[1, :3, 3] = [0.0, 0.0, 0.05]  # the pads 50 mm above the box: they sweep nothing
-    contacts, widths = pad_contacts(poses, 0.085, cloud)
+    hand = ROBOTIQ_2F85
+    contacts, widths = pad_contacts(poses, hand.stroke, cloud, hand.pad_half_width, hand.pad_half_length)
     assert contacts[0, :, 0] == pytest.approx([-0.02, 0.02], abs=1e-9) and widths[0] == pytest.approx(0.04)
     assert np.isnan(contacts[1]).all() and np.isnan(widths[1])
 

@@ -6,12 +6,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from seggrasp.hands import ROBOTIQ_2F85
-
-#: The Robotiq 2F-85's pad footprint (half width, half length, m; `seggrasp.hands`), the default of `pad_contacts`.
-PAD_HALF_WIDTH = ROBOTIQ_2F85.pad_half_width
-PAD_HALF_LENGTH = ROBOTIQ_2F85.pad_half_length
-
 
 def box_corners(boxes: np.ndarray) -> np.ndarray:
     """The 8 corners of each box (B, 2, 3) [min, max] -> (B * 8, 3)."""
@@ -87,12 +81,12 @@ def pressed_centres(poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, 
 
 
 def pad_contacts(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray,
-    half_width: float = PAD_HALF_WIDTH, half_length: float = PAD_HALF_LENGTH,
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Where the two pads (2 half_width x 2 half_length, centred on the gripper's x axis), closing from `openings`
-    at `poses`, first touch the surface points `cloud` (the sampler's pad sweep, `sweep`): contacts (G, 2, 3),
-    -x pad first, and widths (G,); both NaN for a pose whose pads sweep no point (the grasp touches nothing)."""
+    """Where the two pads (2 half_width x 2 half_length, the hand's, centred on the gripper's x axis), closing from
+    `openings` at `poses`, first touch the surface points `cloud` (the sampler's pad sweep, `sweep`): contacts
+    (G, 2, 3), -x pad first, and widths (G,); both NaN for a pose whose pads sweep no point (the grasp touches
+    nothing)."""
     poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
     openings = np.broadcast_to(np.asarray(openings, dtype=np.float64), (len(poses),))
     span, _, _, low, high = sweep(poses, openings, cloud, half_width, -half_length, half_length)
