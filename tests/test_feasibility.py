@@ -14,6 +14,7 @@ from seggrasp.grasp.feasibility import Feasibility, judge_requests
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, Hand
 from seggrasp.truth import GroundTruth
+from tests.cells import FixedMeshCell
 
 
 def body_with(part: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
@@ -80,32 +81,9 @@ def test_a_collar_narrower_than_the_pads_is_infeasible_and_the_reason_names_the_
     assert 0 < int(verdict.reason[len(prefix):-len(suffix)]) < 50
 
 
-class FixedMeshCell:
-    """A cell on a fixed mesh (world = object frame) that reaches every grasp and lifts it; it counts executions."""
-
-    hand = ROBOTIQ_2F85
-    models_scene = True
-
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
-        self.mesh, self.executed = mesh, 0
-
-    def reset(self, seed=None, object_id=None) -> None:
-        pass
-
-    def object_mesh(self):
-        return self.mesh, np.eye(4)
-
-    def check_reach(self, T_world_grasp, width) -> str:
-        return ""
-
-    def execute(self, T_world_grasp, width) -> GraspOutcome:
-        self.executed += 1
-        return GraspOutcome(True, True, 0.1, contacts_observed=False)
-
-
 def test_an_infeasible_request_is_recorded_without_moving_the_cell_and_a_feasible_one_executes(plate) -> None:
     mesh, labels = plate
-    cell = FixedMeshCell(mesh)
+    cell = FixedMeshCell(mesh, GraspOutcome(True, True, 0.1, contacts_observed=False))  # every grasp lifts
     episode = Episode(cell, EpisodeContext("plate", "test", ["body", "plate"], scene_seed=0), None,
                       GroundTruth(mesh, labels))
     before = []

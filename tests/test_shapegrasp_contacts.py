@@ -9,9 +9,10 @@ from seggrasp.baselines import shapegrasp_grasps
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, Slot, action_slot
 from seggrasp.grasp import GraspSet
-from seggrasp.hands import ROBOTIQ_2F85
 from seggrasp.grasp.pads import pad_contacts
+from seggrasp.hands import ROBOTIQ_2F85
 from seggrasp.truth import GroundTruth
+from tests.cells import FixedMeshCell
 
 
 def two_parts(first: trimesh.Trimesh, second: trimesh.Trimesh) -> tuple[trimesh.Trimesh, np.ndarray]:
@@ -78,33 +79,10 @@ def test_pad_contacts_of_a_box_and_of_an_empty_sweep() -> None:
     assert np.isnan(contacts[1]).all() and np.isnan(widths[1])
 
 
-class StillCell:
-    """A cell whose grasps reach but never lift and touch nothing; it counts its executions."""
-
-    models_scene = False
-    hand = ROBOTIQ_2F85
-
-    def __init__(self, mesh: trimesh.Trimesh) -> None:
-        self.mesh, self.executed = mesh, 0
-
-    def reset(self, seed=None, object_id=None) -> None:
-        pass
-
-    def object_mesh(self):
-        return self.mesh, np.eye(4)
-
-    def check_reach(self, T_world_grasp, width) -> str:
-        return ""
-
-    def execute(self, T_world_grasp, width) -> GraspOutcome:
-        self.executed += 1
-        return GraspOutcome(True, False, 0.0)
-
-
 def test_a_planned_grasp_that_touches_nothing_is_a_part_selection_failure() -> None:
     mesh = box((0.04, 0.04, 0.04), (0.0, 0.0, 0.02))
     labels = np.zeros(len(mesh.faces), int)  # the whole box is the prompted part
-    cell = StillCell(mesh)
+    cell = FixedMeshCell(mesh, GraspOutcome(True, False, 0.0), models_scene=False)  # reaches, never lifts
     episode = Episode(cell, EpisodeContext("box", "box", ["body"], scene_seed=0), None, GroundTruth(mesh, labels))
     above = np.eye(4)
     above[:3, 3] = [0.0, 0.0, 0.2]
