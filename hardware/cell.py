@@ -79,6 +79,7 @@ class RealCell:
     """The real robot cell. Build it with `RealCell.from_config(path, dry_run=False)`."""
 
     models_scene = False  # `check_reach` checks IK and the safety limits only: it knows nothing of the object
+    robot_name = "ur5"  # the robot system, as the twin names it (`sim.cell.ROBOTS`): a UR arm with the 2F-85
 
     def __init__(self, config: CellConfig, arm: URArm, gripper: RobotiqGripper, cameras: list[RealSenseCamera],
                  *, dry_run: bool = False) -> None:

@@ -153,8 +153,7 @@ class SegGraspEnv(gym.Env):
             raise ValueError(f"unknown backend {backend!r}; use 'sim' or 'real'")
         self._camera_names = [f.name for f in frames]
         self.observation_space = self._make_observation_space(frames)
-        # the real cell has the 2F-85 (hardware/); the twin's cell says which hand it has
-        self.action_space = spaces.Box(ACTION_LOW, action_high(getattr(self.cell, "hand", ROBOTIQ_2F85)), dtype=np.float32)
+        self.action_space = spaces.Box(ACTION_LOW, action_high(self.cell.hand), dtype=np.float32)
         self.prompt: str | None = None
         self._episode: Episode | None = None  # set by a successful reset, cleared when the step ends the episode
         self.scene_seed: int | None = None  # the cell's scene seed of the last successful reset
@@ -269,7 +268,7 @@ class SegGraspEnv(gym.Env):
         record = episode.execute(action_slot(self._prompt_index, T_world_grasp, width), reset=False)
         reward = float(record.success) if record.success is not None else float(record.lifted)
         info = {"outcome": record.outcome, "on_part": record.touched_on_part, "prompt": self.prompt,
-                "record": record.to_json()}
+                "record": dict(record.to_json(), robot=self.cell.robot_name)}  # as sim.evaluate records it
         return self._observation(), reward, True, False, info
 
     def render(self):

@@ -101,9 +101,10 @@ def _spy_on_execute(cell) -> list:
 
 
 def _assert_same_record(runner: dict, env: dict) -> None:
-    """Field by field; floats within 1e-5."""
+    """Field by field; floats within 1e-5. The runner judged its request feasible; the env's action is not judged."""
     assert set(runner) == set(env)
-    for name in sorted(set(runner) - PROVENANCE):
+    assert runner["infeasible"] is False and env["infeasible"] is None
+    for name in sorted(set(runner) - PROVENANCE - {"infeasible"}):
         if isinstance(runner[name], float) or name in ("T_world_grasp", "quaternion_xyzw"):
             np.testing.assert_allclose(env[name], runner[name], atol=1e-5, err_msg=name)
         elif name == "outcome":
