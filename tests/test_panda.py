@@ -127,6 +127,9 @@ def test_the_gym_env_with_the_panda_passes_the_checker(tmp_path):
     try:
         assert env.action_space.high[6] == np.float32(FRANKA_HAND.stroke)
         check_env(env, skip_render_check=False)
+        env.reset(seed=0)
+        _, _, _, _, info = env.step(env.action_space.sample())
+        assert info["record"]["robot"] == "panda"  # as sim.evaluate records its trials
     finally:
         env.close()
 
