@@ -3,7 +3,9 @@
 A request is feasible when one of the episode's grasp candidates (the sampler's set, which already keeps only
 poses whose width fits the stroke and whose fingers, palm and wrist clear the table and the object) has both
 planned contacts on faces of the part AND pads that each press on the part over at least the footprint's
-`min_share` (`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). When none
+`min_share` (`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). The share
+is measured under the pads themselves: the footprint's `margin` widens them only for ranking (a thin part, an
+eyeglass temple, fills none of the widened pads' share yet lifts by it in the twin). When none
 does, the part's geometry names why, in one sentence with measured numbers, the first that applies of:
 
 1. the part has no face (nothing labelled as it);
@@ -23,7 +25,7 @@ candidate.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -60,17 +62,20 @@ def judge_requests(
     for j, k in enumerate(requests):
         local[labels == k] = j
     best = select_per_prompt(grasps, mesh, local, len(requests), top_k=1, footprint=footprint)
-    surface = footprint.on(mesh)
-    parts: np.ndarray | None = None  # each candidate's part, found once the first request is infeasible
+    surface = replace(footprint, margin=0.0).on(mesh)  # the pads themselves, without the ranking's safety margin
+    parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
         is_part = (local == j).astype(np.float64)[:, None]
         if len(best[j]) and (surface.pad_means(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
             judged[k] = Feasibility(True)
+            continue
+        parts = assign_parts(grasps, mesh, local) if parts is None else parts
+        on_part = np.flatnonzero(parts == j)
+        share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
+        if share is not None and share.max() >= footprint.min_share:  # a candidate ranked lower holds it
+            judged[k] = Feasibility(True)
         else:
-            parts = assign_parts(grasps, mesh, local) if parts is None else parts
-            on_part = np.flatnonzero(parts == j)
-            share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
             judged[k] = Feasibility(False, _reason(prompts[k], local == j, share, hand, config, mesh, footprint,
                                                    table_plane))
     return judged
