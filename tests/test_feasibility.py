@@ -98,3 +98,19 @@ def test_an_infeasible_request_is_recorded_without_moving_the_cell_and_a_feasibl
     body = episode.run("oracle", ["body"])
     assert cell.executed == sum(r.executed for r in body) > 0
     assert all(r.infeasible is False and r.failure != "infeasible" for r in body)
+
+
+def test_a_collar_over_half_the_pads_is_feasible_though_the_ranking_margin_would_leave_it_under_half() -> None:
+    handle = trimesh.creation.box([0.10, 0.02, 0.02])
+    handle.apply_translation([0.08, 0.0, 0.02])
+    mesh, _ = body_with(handle.subdivide_to_size(0.002))
+    collar = (np.abs(mesh.triangles_center[:, 0] - 0.08) < 0.0065).astype(np.int64)  # 13 mm; the pads are 22 mm wide
+    assert judge(mesh, collar, ROBOTIQ_2F85).feasible
+    # the candidates' best share under the pads widened by the footprint's ranking margin (3 mm a side) is < 50 %
+    config = AntipodalConfig.for_hand(ROBOTIQ_2F85)
+    plane = table_plane_in_object_frame(mesh, np.eye(4))
+    grasps = AntipodalSampler(config, ROBOTIQ_2F85).generate(mesh, seed=0, table_plane=plane)
+    widened = PadFootprint(gripper=ROBOTIQ_2F85)
+    assert widened.margin > 0
+    shares = widened.on(mesh).pad_means(grasps, collar.astype(np.float64)[:, None])[:, :, 0].min(axis=1)
+    assert shares.max() < widened.min_share
