@@ -4,7 +4,8 @@ failures by name, and the paired difference per request with its standard error 
     python bench/bench_compare_runs.py --before /tmp/lead/s6 --after /tmp/lead/p1/s7 --methods oracle,seggrasp \
         --label "fingertip pinches" --out docs/results/twin-physics-pinch-seeds0-4.md
 
-Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders). A request is one (seed, object, prompt);
+Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders); a run on several robot systems
+(`--robots`) is compared per system both ran, one section per method and system. A request is one (seed, object, prompt);
 its Part Sel. and Suc. are the shares of its top-k slots (a slot without a grasp is a miss). The paired difference
 is taken over the requests both runs have; its standard error is given over requests and with the objects as
 clusters (a request's slots and an object's prompts share its shape, so the clustered one is the honest one).
@@ -23,7 +24,7 @@ import numpy as np
 from bench.bench_selection import per_request, read_trials  # noqa: E402
 
 from seggrasp.io import atomic_write_text  # noqa: E402
-from sim.evaluate.records import seed_of  # noqa: E402
+from sim.evaluate.records import robot_of, seed_of  # noqa: E402
 
 COLUMNS = {"Part Sel. (all slots)": 0, "Suc. (all slots)": 1, "top-1 Suc.": 3}
 
@@ -37,12 +38,16 @@ def clustered_standard_error(d: np.ndarray, clusters: list[str]) -> float:
     return float(np.sqrt(sum(r * r for r in residual.values())) / len(d))
 
 
-def compare(before: list[dict], after: list[dict], method: str) -> list[str]:
-    """Markdown lines comparing `method` in the two runs' trial records."""
+def compare(before: list[dict], after: list[dict], method: str, robot: str | None = None) -> list[str]:
+    """Markdown lines comparing `method` in the two runs' trial records (those of robot system `robot` if given)."""
+    if robot is not None:
+        before = [r for r in before if robot_of(r) == robot]
+        after = [r for r in after if robot_of(r) == robot]
     a, b = per_request(after).get(method, {}), per_request(before).get(method, {})
     keys = sorted(set(a) & set(b))
     if not keys:
-        raise ValueError(f"the two runs share no request of method {method!r}")
+        on = f" on {robot}" if robot is not None else ""
+        raise ValueError(f"the two runs share no request of method {method!r}{on}")
     category = {r["object_id"]: r["category"] for r in after + before}
     seeds = sorted({k[0] for k in keys})
     lines = [f"Requests compared: {len(keys)} (seeds {', '.join(map(str, seeds))}, "
@@ -86,8 +91,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         before, after = read_trials(args.before), read_trials(args.after)
-        lines = [line for method in args.methods.split(",")
-                 for line in (f"## `{method}`", "", *compare(before, after, method), "")]
+        robots = sorted({robot_of(r) for r in before} & {robot_of(r) for r in after})
+        if not robots:
+            raise ValueError("the two runs share no robot system")
+        sections = [(method, robot) for method in args.methods.split(",") for robot in robots]
+        lines = [line for method, robot in sections
+                 for line in (f"## `{method}`" + (f" on {robot}" if len(robots) > 1 else ""), "",
+                              *compare(before, after, method, robot if len(robots) > 1 else None), "")]
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -8,14 +8,17 @@ import numpy as np
 from bench import bench_compare_runs  # noqa: E402
 
 
-def _run(folder: Path, lifted: dict[tuple[str, str], int]) -> Path:
-    """A run folder whose oracle lifts `lifted[(object, prompt)]` of 4 slots (seed 0), the rest `no_grasp`."""
+def _run(folder: Path, lifted: dict[tuple[str, str], int], robots: dict[str, dict] | None = None) -> Path:
+    """A run folder whose oracle lifts `lifted[(object, prompt)]` of 4 slots (seed 0), the rest `no_grasp`; with
+    `robots`, per robot system its own such dict, each record naming its system."""
     rows = []
-    for (obj, prompt), n in lifted.items():
-        for rank in range(4):
-            ok = rank < n
-            rows.append(dict(method="oracle", object_id=obj, category=obj.split("_")[0], prompt=prompt, rank=rank,
-                             seed=0, executed=ok, contacts_on_part=ok, success=ok, failure="" if ok else "no_grasp"))
+    for robot, lifts in (robots or {None: lifted}).items():
+        for (obj, prompt), n in lifts.items():
+            for rank in range(4):
+                ok = rank < n
+                rows.append(dict(method="oracle", object_id=obj, category=obj.split("_")[0], prompt=prompt,
+                                 rank=rank, seed=0, executed=ok, contacts_on_part=ok, success=ok,
+                                 failure="" if ok else "no_grasp", **({"robot": robot} if robot else {})))
     folder.mkdir()
     (folder / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     return folder
@@ -47,3 +50,16 @@ def test_runs_without_a_shared_request_are_an_error(tmp_path, capsys):
     after = _run(tmp_path / "after", {("mug_b", "handle"): 2})
     assert bench_compare_runs.main(["--before", str(before), "--after", str(after)]) == 2
     assert "share no request" in capsys.readouterr().err
+
+
+def test_a_run_on_two_robot_systems_is_compared_per_system(tmp_path):
+    # the same request on two systems is two requests: pooled, the UR5's gain and the Panda's loss would cancel
+    before = _run(tmp_path / "before", {}, robots={"ur5": {("mug_a", "handle"): 0}, "panda": {("mug_a", "handle"): 4}})
+    after = _run(tmp_path / "after", {}, robots={"ur5": {("mug_a", "handle"): 4}, "panda": {("mug_a", "handle"): 2}})
+    page = tmp_path / "page.md"
+    assert bench_compare_runs.main(["--before", str(before), "--after", str(after), "--out", str(page)]) == 0
+    sections = page.read_text().split("## ")[1:]
+    assert [s.splitlines()[0] for s in sections] == ["`oracle` on panda", "`oracle` on ur5"]
+    rows = [next(line for line in s.splitlines() if line.startswith("| Suc. (all slots)")) for s in sections]
+    assert "| 1.000 | 0.500 | -0.500 ±" in rows[0]
+    assert "| 0.000 | 1.000 | +1.000 ±" in rows[1]
