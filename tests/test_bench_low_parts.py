@@ -16,7 +16,10 @@ def test_the_lowest_contacts_follow_the_sampler_settings():
     # fingertips 3.5 mm up, 20 mm past the pad centres, contact at most 12 mm towards them
     assert ordinary == pytest.approx(0.0115)
     assert pinch == pytest.approx(0.0015 + 0.020 - 0.0165)
-    assert band_top == pytest.approx(0.0045)
+    # a pinch's fingertips 1.5 mm up, the pads on the part's side over the 0.5 mm band above them
+    assert band_top == pytest.approx(0.0015 + 0.0005)
+    narrower = AntipodalConfig(pinch_min_band=0.003)
+    assert low_parts.lowest_contacts(narrower, ROBOTIQ_2F85)[2] == pytest.approx(0.0045)
     deeper = AntipodalConfig(table_clearance=0.002)
     assert low_parts.lowest_contacts(deeper, ROBOTIQ_2F85)[0] == pytest.approx(0.010)
 
