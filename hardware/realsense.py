@@ -57,6 +57,8 @@ class RealSenseCamera:
         self.config = config
         self._pipeline = pipeline
         self._align = align
+        # made here, a recording gets a new pipeline and align per opening
+        self._own_pipeline, self._own_align = pipeline is None, align is None
         self.warmup_frames = warmup_frames
         self.timeout_ms = timeout_ms
         self.K: np.ndarray | None = None
@@ -79,9 +81,10 @@ class RealSenseCamera:
         """Start streaming from this serial (or its recording), read intrinsics and depth scale, and let
         auto-exposure settle."""
         rs = _rs()
-        if self._pipeline is None:
+        # one pipeline (and align) playing one file after another aborts the process now and then
+        if self._own_pipeline and (self._pipeline is None or self.recording is not None):
             self._pipeline = rs.pipeline()
-        if self._align is None:
+        if self._own_align and (self._align is None or self.recording is not None):
             self._align = rs.align(rs.stream.color)
         stream_config = rs.config()
         if self.recording is None:
@@ -156,8 +159,13 @@ class RealSenseCamera:
                      K=self.K.copy(), T_world_cam=self.config.T_world_cam(T_world_gripper))
 
     def stop(self) -> None:
-        """Stop streaming. Safe to call more than once."""
+        """Stop streaming. Safe to call more than once.
+
+        A recording is first played to its end: its reader thread stops the playback by itself at the end of the
+        file, and a `pipeline.stop()` racing that stop aborts the process ("pure virtual method called")."""
         if self._running:
+            if self._playback is not None:
+                self._play_to_end()
             try:
                 self._pipeline.stop()
             except RuntimeError as exc:
@@ -168,6 +176,16 @@ class RealSenseCamera:
     def _describe(self) -> str:
         where = f" from recording {self.recording}" if self.recording is not None else ""
         return f"RealSense camera {self.config.serial} ({self.name}){where}"
+
+    def _play_to_end(self) -> None:
+        """Drop the recording's remaining frame sets until its playback has stopped, within `timeout_ms`."""
+        stopped = _rs().playback_status.stopped
+        deadline = time.monotonic() + self.timeout_ms / 1000
+        while self._playback.current_status() != stopped and time.monotonic() < deadline:
+            self._pipeline.try_wait_for_frames(100)
+        if self._playback.current_status() != stopped:
+            log.warning("camera %s: recording %s still playing after %.1f s; stopping it anyway", self.name,
+                        self.recording, self.timeout_ms / 1000)
 
     def _frames(self, count: int, seconds: float) -> Any:
         """The `count`-th next frame set (the ones before it are dropped), all within `seconds`."""

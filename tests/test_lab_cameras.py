@@ -235,3 +235,47 @@ def load_workspace(path):
         return cell.workspace
     finally:
         cell.close()
+
+
+REOPENINGS = 120
+REOPEN_CHILD = """
+import sys
+from dataclasses import replace
+
+import numpy as np
+
+from hardware.config import load_config
+from hardware.realsense import RealSenseCamera
+from seggrasp.cell import Frame
+from sim.lab.cameras import write_recordings
+
+config_path, folder, n = sys.argv[1], sys.argv[2], int(sys.argv[3])
+camera_config = load_config(config_path).cameras[0]
+K = np.array([[600.0, 0.0, 320.0], [0.0, 600.0, 240.0], [0.0, 0.0, 1.0]])
+
+def scene(z):
+    return {camera_config.serial: Frame(name=camera_config.name, rgb=np.zeros((480, 640, 3), np.uint8),
+                                        depth=np.full((480, 640), z, np.float32), K=K, T_world_cam=np.eye(4))}
+
+path = write_recordings(scene(0.5), folder)[camera_config.serial]
+camera = RealSenseCamera(replace(camera_config, width=640, height=480, recording=path))
+camera.start()
+for i in range(n):
+    write_recordings(scene(0.5 + 0.001 * i), folder)
+    depth = camera.capture().depth
+    assert abs(float(np.median(depth[depth > 0])) - (0.5 + 0.001 * i)) < 0.002, (i, float(np.median(depth)))
+camera.stop()
+print("reopened", n)
+"""
+
+
+def test_a_camera_reopens_many_replaced_recordings_without_aborting(tmp_path):
+    """Before a camera opened a new pipeline per recording and played the old one to its end before stopping it,
+    these re-openings aborted the process ("pure virtual method called") or lost frame sets in each of 3 runs on a
+    loaded machine; the child's abort is this test's failure."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", REOPEN_CHILD, str(EXAMPLE_CONFIG), str(tmp_path), str(REOPENINGS)],
+                         capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0 and f"reopened {REOPENINGS}" in run.stdout, run.stderr[-2000:]
