@@ -75,6 +75,10 @@ class GraspOutcome:
     message: str = ""
     failure: str = ""
     touched_weights: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.float64))
+    # in a scene of several objects: how far (m) each other object moved, in the scene's order, and how many of
+    # them rose with the grasped one (both empty / 0 for an object alone on the table)
+    disturbance: tuple[float, ...] = ()
+    lifted_along: int = 0
 
     def __post_init__(self) -> None:
         if self.failure and self.failure not in FAILURES:
@@ -93,6 +97,8 @@ class GraspOutcome:
             "message": self.message,
             "failure": self.failure,
             "touched_weights": [float(w) for w in self.touched_weights],
+            **({"disturbance": [float(d) for d in self.disturbance], "lifted_along": int(self.lifted_along)}
+               if self.disturbance else {}),
         }
 
 

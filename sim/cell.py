@@ -1,8 +1,10 @@
 """`SimCell`: the PyBullet twin of the robot cell, implementing `seggrasp.cell.Cell`.
 
 One episode: `reset(seed, object_id)` builds the scene (table, the robot system - a UR5 + 2F-85, a Franka Panda +
-Franka Hand (`robot="panda"`, `sim.panda`) or a floating 2F-85 - one object at a seeded pose, settled), `capture()` renders the virtual D435s, `object_mesh()` gives the twin's mesh and pose, and
-`execute(T_world_grasp, width)` runs the grasp-and-lift primitive (`sim.grasp_primitive`).
+Franka Hand (`robot="panda"`, `sim.panda`) or a floating 2F-85 - one object at a seeded pose, settled; with
+`scene="packed" | "pile"`, that object among distractors, `sim.scenes`), `capture()` renders the virtual D435s,
+`object_mesh()` gives the twin's mesh and pose (of the object the request names), and `execute(T_world_grasp,
+width)` runs the grasp-and-lift primitive (`sim.grasp_primitive`), which keeps clear of the other objects.
 
 `record_next(path)` makes the next `execute()` write a picture strip of its stages (`sim.recording`).
 """
@@ -28,15 +30,22 @@ from sim.grasp_primitive import GraspPrimitive, GraspSettings
 from sim.gripper import GripperSettings
 from sim.recording import TrialRecorder
 from sim.robot import ArmSettings, UR5Arm
-from sim.world import TABLE_TOP_Z, WORKSPACE_CENTER, WORKSPACE_JITTER, PhysicsSettings, World
+from sim.world import (
+    TABLE_TOP_Z,
+    WORKSPACE_CENTER,
+    WORKSPACE_HALF_SIZE,
+    WORKSPACE_JITTER,
+    PhysicsSettings,
+    World,
+)
 
 log = logging.getLogger(__name__)
 
 EMBODIMENTS = ("arm", "floating")
 #: The robot systems: the arm and its hand (`seggrasp.hands`).
 ROBOTS = {"ur5": ROBOTIQ_2F85, "panda": FRANKA_HAND}
-#: Half side (m) of the square workspace box around the drop zone that perception crops to.
-WORKSPACE_HALF_SIZE = 0.25
+#: The most a scene of several objects settles (s): objects of a pile rock longer than one alone.
+SCENE_SETTLE_TIME = 3.0
 #: Floating gripper's home: above the workspace, pointing down.
 FLOATING_HOME = np.array([[1, 0, 0, 0.5], [0, -1, 0, 0.0], [0, 0, -1, 0.45], [0, 0, 0, 1.0]])
 
@@ -75,7 +84,9 @@ class SimCell:
     """The simulated cell. `objects` defaults to the twin (`seggrasp.objects.load_asset_set()`); `seed` is the scene
     seed of the first scene (`reset`); `robot` the system (`ROBOTS`: "ur5", the UR5 with the 2F-85, or "panda", the
     Franka Panda with the Franka Hand; the floating gripper is the 2F-85's), whose hand is `hand`. Everything else -
-    the table, the object's placement, the cameras, the lift, the hold and the success test - is the same for both."""
+    the table, the object's placement, the cameras, the lift, the hold and the success test - is the same for both.
+    `scene` ("packed" or "pile"; None: the object alone) puts `objects_per_scene` objects on the table: the chosen
+    one and distractors drawn from `objects` (`sim.scenes`)."""
 
     models_scene = True  # `check_reach` poses the simulated robot among the table and the object
 
@@ -93,6 +104,8 @@ class SimCell:
         grasp: GraspSettings | None = None,
         arm: ArmSettings | None = None,
         gripper: GripperSettings | None = None,
+        scene: str | None = None,
+        objects_per_scene: int = 4,
     ) -> None:
         if embodiment not in EMBODIMENTS:
             raise ValueError(f"unknown embodiment {embodiment!r}; use one of {EMBODIMENTS}")
@@ -100,6 +113,13 @@ class SimCell:
             raise ValueError(f"unknown robot {robot!r}; use one of {tuple(ROBOTS)}")
         if robot != "ur5" and embodiment != "arm":
             raise ValueError(f"the floating gripper is the 2F-85's; robot={robot!r} needs embodiment='arm'")
+        if scene is not None:
+            from sim.scenes import KINDS, N_OBJECTS
+
+            if scene not in KINDS:
+                raise ValueError(f"unknown scene {scene!r}; use one of {KINDS} (or None: the object alone)")
+            if not N_OBJECTS[0] <= objects_per_scene <= N_OBJECTS[1]:
+                raise ValueError(f"a scene holds {N_OBJECTS[0]}-{N_OBJECTS[1]} objects, got {objects_per_scene}")
         if objects is None:
             from seggrasp.objects import load_asset_set
 
@@ -116,8 +136,11 @@ class SimCell:
         self.rig = CameraRig(n_cameras, image_size[0], image_size[1], noise=camera_noise or DepthNoise())
         self.cameras = self.rig.cameras()
         self.world = World(gui=gui, physics=physics)
+        self.scene, self.objects_per_scene = scene, objects_per_scene
         self.current_object: ObjectModel | None = None
         self.object_body = -1
+        self.neighbours: list[tuple[int, str]] = []  # (body, object id) of the other objects on the table
+        self.scene_plan = None  # the scene's `sim.scenes.ScenePlan` (None: the object alone)
         self._scene_seed = -1  # reset(None) takes the next scene seed
         self._recorder: TrialRecorder | None = None
         self.reset(seed)
@@ -147,8 +170,17 @@ class SimCell:
             self.robot = FloatingGripper(self.world, FLOATING_HOME, self._gripper_settings)
         self.robot.reset_home(self.hand.stroke)
         self.current_object = model
-        self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
-        self._settle()
+        if self.scene is None:
+            self.object_body = self.world.load_object(model, self._drop_pose(model, rng))
+            self._settle()
+        else:
+            from sim.scenes import place_scene, plan_scene
+
+            self.scene_plan = plan_scene(self.objects, target_id=model.object_id, n_objects=self.objects_per_scene,
+                                         kind=self.scene, seed=self._scene_seed)
+            bodies = place_scene(self.world, self._by_id, self.scene_plan, settle_time=SCENE_SETTLE_TIME)
+            self.object_body = bodies[0]
+            self.neighbours = list(zip(bodies[1:], self.scene_plan.object_ids[1:]))
         self._camera_noise_rng = np.random.default_rng([self._scene_seed, 1])
 
     def _drop_pose(self, model: ObjectModel, rng: np.random.Generator) -> np.ndarray:
@@ -182,12 +214,14 @@ class SimCell:
 
     def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
         """Why `execute` would refuse this grasp in the scene as it is now - step 1 of `sim.grasp_primitive`: no IK
-        plan (`unreachable: ...`), or every free-space path, approach or lift hits the table or the object - with
-        nothing moved (the robot is posed kinematically and put back); "" when it would go ahead."""
+        plan (`unreachable: ...`), or every free-space path, approach or lift hits the table, the object or another
+        object on the table - with nothing moved (the robot is posed kinematically and put back); "" when it would
+        go ahead."""
         self._require_scene()
         T_world_grasp, width = _check_grasp(T_world_grasp, width)
         return GraspPrimitive(
-            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings
+            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings,
+            neighbours=self.neighbours,
         ).motion(T_world_grasp, width)[2]
 
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
@@ -196,7 +230,8 @@ class SimCell:
         T_world_grasp, width = _check_grasp(T_world_grasp, width)
         recorder, self._recorder = self._recorder, None
         outcome = GraspPrimitive(
-            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings, recorder
+            self.world, self.robot, self.object_body, self.current_object, self.grasp_settings, recorder,
+            neighbours=self.neighbours,
         ).run(T_world_grasp, width)
         if recorder is not None and not outcome.reachable:
             recorder.write(f"{self.current_object.object_id}: {outcome.message}")

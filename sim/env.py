@@ -16,7 +16,9 @@ grasp-and-lift through the same `seggrasp.episode.Episode` the benchmark and the
 (`terminated=True`; `truncated` is always False: there is no time limit). Reward (sim): 1.0 when the object was
 lifted and the prompted part carries most of what the pads touched (ground truth), else 0.0. With `backend="real"`
 contacts are not observed, so the reward is 1.0 for a lift and `info["on_part"]` is None. `info["outcome"]` is the
-`GraspOutcome` as JSON and `info["record"]` the episode's `TrialRecord` as JSON.
+`GraspOutcome` as JSON and `info["record"]` the episode's `TrialRecord` as JSON. `scene="packed" | "pile"` (and
+`objects_per_scene`, `sim.cell.SimCell`) puts the object among others; the outcome then has how far each moved and
+`info["scene"]` the scene's objects and poses.
 
 Misuse is refused with a clear error before anything moves: `step` before a successful `reset`, after the episode
 ended or after `close`, an action that is not 7 real numbers inside `action_space` (a complex action is refused, not
@@ -269,6 +271,8 @@ class SegGraspEnv(gym.Env):
         reward = float(record.success) if record.success is not None else float(record.lifted)
         info = {"outcome": record.outcome, "on_part": record.touched_on_part, "prompt": self.prompt,
                 "record": dict(record.to_json(), robot=self.cell.robot_name)}  # as sim.evaluate records it
+        if getattr(self.cell, "scene_plan", None) is not None:  # a twin scene of several objects
+            info["scene"] = self.cell.scene_plan.to_record()
         return self._observation(), reward, True, False, info
 
     def render(self):

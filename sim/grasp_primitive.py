@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,6 +31,8 @@ from sim.world import World
 
 #: The object's drift in the fingers is checked every this many physics steps during lift and hold.
 TRACK_EVERY = 4
+#: Another object on the table whose origin rose this much (m) by the end of the hold was lifted along.
+LIFTED_ALONG = 0.05
 
 
 @dataclass(frozen=True)
@@ -64,11 +67,15 @@ class GraspPrimitive:
 
     def __init__(
         self, world: World, robot, object_body: int, model: ObjectModel, settings: GraspSettings,
-        recorder: TrialRecorder | None = None,
+        recorder: TrialRecorder | None = None, neighbours: Sequence[tuple[int, str]] = (),
     ) -> None:
+        """`neighbours`: (body, object id) of the other objects on the table, which no configuration of the motion
+        may touch and whose displacement the outcome reports."""
         self.world, self.robot, self.object_body, self.model, self.settings = world, robot, object_body, model, settings
         self.gripper = robot.gripper
         self.recorder = recorder
+        self.neighbours = tuple(neighbours)
+        self._neighbours_start = [world.body_pose(body) for body, _ in self.neighbours]
 
     def plan(self, T_world_grasp: np.ndarray, width: float) -> tuple[list, str]:
         """The robot's candidate paths (`UR5Arm.plan`) through the grasp's pre-grasp, grasp and lift poses of the
@@ -120,7 +127,8 @@ class GraspPrimitive:
         if plan is None:
             if failure == "collision":
                 self.gripper.set_width(self.gripper.max_width)
-            return GraspOutcome(False, False, 0.0, message=message, failure=failure)
+            return GraspOutcome(False, False, 0.0, message=message, failure=failure,
+                                disturbance=(0.0,) * len(self.neighbours))
         transit, paths = plan
         self.gripper.set_width(self._opening(width))
         self.robot.move_free(transit)
@@ -183,9 +191,12 @@ class GraspPrimitive:
         faces, weights = self._touched_faces(contacts)
         if self.recorder is not None:
             self.recorder.write(f"{self.model.object_id}: {message}")
+        ends = [self.world.body_pose(body) for body, _ in self.neighbours]
         return GraspOutcome(
             reachable=True, lifted=not failure, lift_height=max(rise, 0.0), touched_faces=faces,
             contact_force=force, message=message, failure=failure, touched_weights=weights,
+            disturbance=tuple(_moved(start, end)[0] for start, end in zip(self._neighbours_start, ends)),
+            lifted_along=sum(end[2, 3] - start[2, 3] > LIFTED_ALONG for start, end in zip(self._neighbours_start, ends)),
         )
 
     def _T_world_tcp(self) -> np.ndarray:
@@ -200,7 +211,8 @@ class GraspPrimitive:
         """'' if the robot keeps `table_clearance` from the table (its fingertips `fingertip_table_clearance`) on
         every configuration - the free-space `transit` and the `approach` with the gripper opened to `opening`, the
         `closed` ones (grasp and lift) with it closed to `width`, where the fingertips reach furthest along the
-        approach - and does not touch the object on the `transit` (the rest may touch it); else the reason."""
+        approach - and does not touch the object on the `transit` (the rest may touch it) nor another object on
+        the table anywhere; else the reason."""
         client = self.world.client
         body, links = self.robot.table_check_links()
         links = set(links)
@@ -220,6 +232,9 @@ class GraspPrimitive:
             if index < len(transit) and client.getClosestPoints(body, self.object_body, 0.0):
                 where = "at the pre-grasp" if index == len(transit) - 1 else f"at transit waypoint {index + 1}"
                 return f"robot would hit the object {where}"
+            for neighbour, name in self.neighbours:
+                if client.getClosestPoints(body, neighbour, 0.0):
+                    return f"robot would hit the {name} beside the object (waypoint {index + 1} of {len(configs)})"
         return ""
 
     def _pad_contacts(self) -> list[tuple[int, np.ndarray, float]]:

@@ -28,6 +28,8 @@ TABLE_CENTER_XY = (0.35, 0.0)
 #: Where objects are dropped: centre (x, y) on the table, +-jitter in x and y, full yaw.
 WORKSPACE_CENTER = np.array([0.5, 0.0])
 WORKSPACE_JITTER = 0.05
+#: Half side (m) of the square workspace box around the drop zone that perception crops to.
+WORKSPACE_HALF_SIZE = 0.25
 #: PyBullet keeps contacts on convex mesh shapes this far outside the surface (its collision margin), so closed
 #: fingers rest this much off each side of an object (measured: tests/test_sim_gripper.py).
 COLLISION_SKIN = 0.001

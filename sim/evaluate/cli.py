@@ -17,6 +17,7 @@ from sim.cell import EMBODIMENTS, ROBOTS
 from sim.evaluate import emulated
 from sim.evaluate.config import (
     DEFAULT_METHODS,
+    DEFAULT_OBJECTS_PER_SCENE,
     MAX_SEEDS,
     MAX_TOP_K,
     DEFAULT_ROBOT,
@@ -29,6 +30,8 @@ from sim.evaluate.config import (
 from sim.evaluate.records import OutputLock, error_message, load_run, prepare_out
 from sim.evaluate.report import write_summary
 from sim.evaluate.runner import RunStopped, evaluate_objects
+from sim.scenes import KINDS as SCENE_KINDS
+from sim.scenes import N_OBJECTS as SCENE_SIZE
 
 LOG = logging.getLogger("sim.evaluate")
 DESCRIPTION = ("`python -m sim.evaluate`: the benchmark on the bundled twin (or a real cell) — segmentation, part "
@@ -94,6 +97,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         + ", ".join(f"{name} {hand.default_grip_force:g}" for name, hand in ROBOTS.items())
                         + "); the grasp sampler's torsion limit follows it. A real cell grips with its cell.yaml's "
                         "gripper.force")
+    parser.add_argument("--scene", choices=SCENE_KINDS, default=None,
+                        help="twin only: each object among other objects of the twin on the table, packed (upright, "
+                        "close) or pile (dropped onto each other); the grasp must not hit them and the trial records "
+                        "how far each moved (default: the object alone)")
+    parser.add_argument("--objects-per-scene", type=int, default=None, metavar="N",
+                        help=f"--scene: objects on the table, the requested one included, {SCENE_SIZE[0]}-"
+                        f"{SCENE_SIZE[1]} (default: {DEFAULT_OBJECTS_PER_SCENE})")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="log every step, debug messages included (default: warnings and errors only)")
     return parser.parse_args(argv)
@@ -102,10 +112,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 #: The run settings an option sets (RunConfig fields; the option is the field with dashes): a resumed run keeps the
 #: recorded value of each one not given and refuses one given that differs.
 SETTINGS = ("detector", "weights", "embodiment", "top_k", "backend", "config", "perceive", "dry_run", "prompts",
-            "grip_force", "quick")
+            "grip_force", "quick", "scene", "objects_per_scene")
 #: The value of each setting not given, on a fresh run (`embodiment` and `top_k`: see `_defaults`).
 DEFAULTS = {"detector": "typical", "weights": None, "backend": "sim", "config": None, "perceive": False,
-            "dry_run": False, "prompts": None, "grip_force": None, "quick": False, "robots": DEFAULT_ROBOT}
+            "dry_run": False, "prompts": None, "grip_force": None, "quick": False, "robots": DEFAULT_ROBOT,
+            "scene": None}
 
 
 def _split(text: str | None) -> list[str]:
@@ -193,6 +204,9 @@ def _check_given(args: argparse.Namespace) -> None:
         raise ValueError(f"--record must be at least 0, got {args.record}")
     if args.address and args.engine != "ray":
         raise ValueError("--address joins a Ray cluster: it needs --engine ray")
+    if args.objects_per_scene is not None and not SCENE_SIZE[0] <= args.objects_per_scene <= SCENE_SIZE[1]:
+        raise ValueError(f"--objects-per-scene must be {SCENE_SIZE[0]}-{SCENE_SIZE[1]} (the requested object "
+                         f"included), got {args.objects_per_scene}")
 
 
 def _check_choices(args: argparse.Namespace, methods: list[str]) -> None:
@@ -220,6 +234,11 @@ def _check_backend(args: argparse.Namespace) -> None:
         raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
     if args.grip_force is not None and args.backend == "real":
         raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
+    if getattr(args, "scene", None) is not None and args.backend == "real":
+        raise ValueError("--scene lays out the twin's table; the real cell grasps what is on its table (drop --scene)")
+    if getattr(args, "scene", None) is not None and getattr(args, "perceive", False):
+        raise ValueError("--perceive with --scene: finding the requested object among others from the cameras is "
+                         "not built yet; drop --perceive (the twin's truth names the object)")
 
 
 def check_grip_force(grip_force: float | None, robots: Sequence[str]) -> None:
@@ -278,8 +297,18 @@ def build_config(args: argparse.Namespace, recorded: RunConfig | None = None) ->
         seeds=seeds or [0], top_k=args.top_k, backend=args.backend, config=args.config,
         perceive=bool(args.perceive or args.backend == "real"), dry_run=args.dry_run, quick=args.quick,
         prompts=prompts, record=args.record, grip_force=args.grip_force,
-        twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "", robots=_robots(args.robots),
+        twin_gripper=TWIN_GRIPPER if args.backend == "sim" else "", robots=_robots(args.robots), scene=args.scene,
+        objects_per_scene=_objects_per_scene(args),
     )
+
+
+def _objects_per_scene(args: argparse.Namespace) -> int | None:
+    """The objects on the table of a scene run (None: the object alone); refused without --scene."""
+    if args.scene is None:
+        if args.objects_per_scene is not None:
+            raise ValueError("--objects-per-scene sets a scene's size: it needs --scene packed|pile")
+        return None
+    return DEFAULT_OBJECTS_PER_SCENE if args.objects_per_scene is None else args.objects_per_scene
 
 
 def _resumed(args: argparse.Namespace, recorded: RunConfig) -> RunConfig:

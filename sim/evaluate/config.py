@@ -26,7 +26,9 @@ MAX_SEEDS = 1000
 DEFAULT_ROBOT = "ur5"
 #: Settings a resumed run must share with the run it continues (methods, objects, seeds and robots are merged).
 RESUME_KEYS = ("detector", "weights", "embodiment", "decomposition_seed", "top_k", "backend", "perceive", "prompts",
-               "grip_force", "twin_gripper", "dry_run")
+               "grip_force", "twin_gripper", "dry_run", "scene", "objects_per_scene")
+#: Objects on the table in a scene (`--scene`) unless `--objects-per-scene` says.
+DEFAULT_OBJECTS_PER_SCENE = 4
 #: The twin's gripper model (`sim.gripper`): "slides", the fingertips on force-limited slides traced from the
 #: 2F-85's linkage; runs before it simulated "linkage", the linkage's revolute joints. A run resumes only on the
 #: model it started with.
@@ -60,6 +62,9 @@ class RunConfig:
     grip_force: float | None = None
     twin_gripper: str = TWIN_GRIPPER  # the twin's gripper model ("" on the real cell)
     robots: list[str] = field(default_factory=lambda: [DEFAULT_ROBOT])
+    # twin only: "packed" or "pile" puts each object among distractors (`sim.scenes`), objects_per_scene in all
+    scene: str | None = None
+    objects_per_scene: int | None = None
 
     @property
     def uses_torch(self) -> bool:

@@ -111,7 +111,25 @@ def grasp_metrics(rows: list[dict]) -> dict:
         "requests": len(requests),
         "infeasible_requests": sum(v is True for v in requests.values()),
         "judged_requests": sum(v is not None for v in requests.values()),
+        **_disturbance(executed),
     }
+
+
+#: An object moved at least this much (m) by a grasp of another one counts as disturbed.
+DISTURBED = 0.01
+
+
+def _disturbance(executed: list[dict]) -> dict:
+    """In a scene of several objects, over the executed trials: the mean of the farthest any other object moved
+    (mm), the share of trials that moved one at least `DISTURBED` and the share that lifted one along ({} for
+    objects alone)."""
+    moved = [(r.get("outcome") or {}).get("disturbance") for r in executed]
+    if not any(moved):
+        return {}
+    farthest = [max(m) if m else 0.0 for m in moved]
+    lifted = [(r.get("outcome") or {}).get("lifted_along", 0) > 0 for r in executed]
+    return {"disturbance_mm": 1000 * float(np.mean(farthest)),
+            "disturbed": float(np.mean([f >= DISTURBED for f in farthest])), "lifted_along": float(np.mean(lifted))}
 
 
 def infeasible_parts(rows: list[dict]) -> dict:
@@ -298,12 +316,25 @@ def _infeasible(methods: dict) -> list[str]:
     return lines
 
 
+def _neighbours(methods: dict) -> list[str]:
+    """A scene run's table of what each method's executed grasps did to the other objects."""
+    rows = [[name, _fmt(m["success_all_slots"]), f"{m['disturbance_mm']:.1f}", _fmt(m["disturbed"]),
+             _fmt(m["lifted_along"]), str(m["executed"])] for name, m in methods.items() if "disturbance_mm" in m]
+    if not rows:
+        return []
+    return ["", "## The other objects on the table", "",
+            "Over the executed grasps: how far the farthest-moved other object went (mean, mm), the share of grasps "
+            f"that moved one at least {DISTURBED * 1000:.0f} mm and the share that lifted one along.", "",
+            *_table(["method", "Suc.", "farthest moved (mm)", f"moved one >= {DISTURBED * 1000:.0f} mm",
+                     "lifted one along", "executed"], rows)]
+
+
 def _body(summary: dict, seeds: Sequence[int]) -> list[str]:
-    """One system's sections: the interval tables, Tables I-III, per-category results, failures, the requests it
-    cannot hold and the threshold curve."""
+    """One system's sections: the interval tables, Tables I-III, what a scene's grasps did to the other objects,
+    per-category results, failures, the requests it cannot hold and the threshold curve."""
     methods = summary["methods"]
     lines = _interval_tables(summary, seeds) if any("intervals" in m for m in methods.values()) else []
-    lines += _table_one(methods) + [""] + _table_two(methods) + _table_three(methods)
+    lines += _table_one(methods) + [""] + _table_two(methods) + _neighbours(methods) + _table_three(methods)
     lines += _curve_table(summary.get("curve") or {}) + _per_category(methods) + _failures(methods)
     return lines + _infeasible(methods)
 
@@ -322,6 +353,7 @@ def _header_line(header: dict, seeds: Sequence[int]) -> str:
     robots = header.get("robots", [])
     return (f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
             + (f" · robots: {', '.join(robots)}" if robots else "")
+            + (f" · scene: {header['scene']}, {header['objects_per_scene']} objects" if header.get("scene") else "")
             + f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
             f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
             + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"
@@ -373,7 +405,8 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
         "backend": config.backend, "robots": config.robots, "perceive": config.perceive, "seeds": config.seeds,
         "decomposition_seed": config.decomposition_seed, "top_k": config.top_k, "n_objects": len(config.objects),
         "wall_time_s": wall_time, "recorded_trials": sum(map(len, trials.values())),
-        "expected_trials": expected_trials(config),
+        "expected_trials": expected_trials(config), "scene": config.scene,
+        "objects_per_scene": config.objects_per_scene,
     }
     summary["run"] = dict(header, methods=config.methods, objects=config.objects,
                           crashed_objects=sorted({c["object_id"] for c in crashes}),

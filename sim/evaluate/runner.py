@@ -22,7 +22,7 @@ from seggrasp.method import PartPlan
 from seggrasp.objects import ObjectModel
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
-from sim.evaluate.config import RunConfig, prompts_of, scene_seed_of
+from sim.evaluate.config import DEFAULT_OBJECTS_PER_SCENE, RunConfig, prompts_of, scene_seed_of
 from sim.evaluate.emulated import real_cell, twin_objects
 from sim.evaluate.records import (
     RESULT_FILES,
@@ -128,6 +128,10 @@ def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
         return _CELLS["real"]
     if model.object_id not in _CELL_OBJECTS:
         objects = dict(_CELL_OBJECTS, **{model.object_id: model})
+        if config.scene is not None:  # the distractors: the installed twin's other objects
+            from seggrasp.objects import load_asset_set
+
+            objects = {o.object_id: o for o in load_asset_set()} | objects
         close_cell()
         _CELL_OBJECTS.update(objects)
     if config.robot not in _CELLS:
@@ -136,7 +140,8 @@ def _get_cell(config: RunConfig, model: ObjectModel | None = None) -> Cell:
 
         _CELLS[config.robot] = SimCell(
             objects=list(_CELL_OBJECTS.values()), embodiment=config.embodiment, seed=config.seed, robot=config.robot,
-            gripper=GripperSettings(grip_force=config.hand_grip_force, hand=config.hand))
+            gripper=GripperSettings(grip_force=config.hand_grip_force, hand=config.hand), scene=config.scene,
+            objects_per_scene=config.objects_per_scene or DEFAULT_OBJECTS_PER_SCENE)
     return _CELLS[config.robot]
 
 
@@ -281,7 +286,7 @@ class _Hooks:
                 self.episode.cell.record_next(self.strip)
 
     def on_record(self, record: TrialRecord) -> None:
-        record_extra(record, self.config)
+        record_extra(record, self.config, self.episode.cell)
         if self.strip is not None:
             if record.reused_outcome:  # the cell did not move for it: film the same grasp in the same scene
                 film(self.episode.cell, self.episode.context, self.slot, self.strip)
@@ -317,6 +322,7 @@ def outcome_from(record: dict) -> GraspOutcome:
     stored = dict(record["outcome"])
     stored["touched_faces"] = np.asarray(stored["touched_faces"], dtype=np.int64)
     stored["touched_weights"] = np.asarray(stored.get("touched_weights", []), dtype=np.float64)
+    stored["disturbance"] = tuple(stored.get("disturbance", ()))
     return GraspOutcome(**stored)
 
 
@@ -462,8 +468,10 @@ def _run_pool(tasks: list[ObjectTask], workers: int, uses_torch: bool, on_status
     return unfinished
 
 
-def record_extra(record: TrialRecord, config: RunConfig) -> None:
+def record_extra(record: TrialRecord, config: RunConfig, cell: Cell) -> None:
     """What the harness adds to every trial record: the embodiment, backend, whether the mesh was perceived and the
-    hand (the robot system is the record's own `robot` field)."""
+    hand (the robot system is the record's own `robot` field); in a scene run, the scene (`sim.scenes.ScenePlan`)."""
     record.extra = {"embodiment": config.embodiment, "backend": config.backend, "perceive": config.perceive,
                     "decomposition_seed": config.decomposition_seed, "hand": config.hand.name}
+    if config.scene is not None:
+        record.extra["scene"] = cell.scene_plan.to_record()
