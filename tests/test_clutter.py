@@ -9,7 +9,7 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from seggrasp.objects import load_asset
+from seggrasp.objects import load_asset, load_asset_set
 from sim.cell import SimCell
 from sim.evaluate import main
 
@@ -128,3 +128,21 @@ def test_bad_scene_arguments_get_one_sentence(argv, message, capsys, tmp_path):
     assert main([*argv, "--objects", "mug_classic", "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err.strip()
     assert message in err and len(err.splitlines()) == 1
+
+
+def test_a_pile_settles_clear_of_the_parked_robot():
+    """Without the robot parked out of the way, this pile's ball-peen hammer came to rest leaning on the 2F-85's
+    knuckle at home, 25 cm above the table."""
+    cell = SimCell(objects=load_asset_set(), scene="pile", objects_per_scene=4, seed=1)
+    try:
+        cell.reset(seed=1, object_id="mug_classic")
+        assert cell.scene_plan.object_ids == ("mug_classic", "frying_pan_20", "bottle_beer", "hammer_ballpeen")
+        bodies = [cell.object_body] + [body for body, _ in cell.neighbours]
+        assert not any(cell.world.client.getClosestPoints(body, cell.robot.body, distance=0.0) for body in bodies)
+        assert max(cell.world.client.getAABB(body)[1][2] for body in bodies) < 0.2  # nothing props a body up
+        cell.robot.reset_home(cell.hand.stroke)
+        for _ in range(240):
+            cell.world.step()
+        assert all(np.linalg.norm(cell.world.client.getBaseVelocity(body)[0]) < 0.05 for body in bodies)
+    finally:
+        cell.close()
