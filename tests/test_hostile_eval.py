@@ -386,3 +386,32 @@ def test_help_gives_every_option_a_text_and_the_true_defaults(capsys) -> None:
         assert option in text, option
     defaults = parse_args([])
     assert defaults.embodiment is None and defaults.detector is None  # filled from the run (fresh or recorded)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGKILL])
+def test_a_stopped_local_run_leaves_no_worker_behind_and_resumes_whole(sig, tmp_path) -> None:
+    """Before, a SIGTERM or SIGKILL took the driver down alone: its two spawned workers ran on, orphaned, and kept
+    appending records to --out."""
+    out = tmp_path / "out"
+    argv = ["--objects", "mug_classic,knife_chef,hammer_claw,bottle_water", *ORACLE[2:], "--workers", "2",
+            "--out", str(out)]
+    driver = subprocess.Popen([sys.executable, "-m", "sim.evaluate", *argv], cwd=REPO, env=_env(),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, workers = time.monotonic() + 60, {}
+    while len(workers) < 2 and time.monotonic() < deadline and driver.poll() is None:
+        time.sleep(0.2)
+        workers = {pid: c for pid, c in descendants(driver.pid).items() if "multiprocessing.spawn" in c}
+    assert len(workers) == 2, "the driver never started its two workers"
+    time.sleep(2.0)
+    driver.send_signal(sig)
+    _, err = driver.communicate(timeout=60)
+    assert driver.returncode == (128 + sig if sig == signal.SIGTERM else -sig), err
+    if sig == signal.SIGTERM:
+        assert "stopped by SIGTERM; the records written so far are kept" in _error(err)
+    deadline = time.monotonic() + 30
+    while any(alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not [command for pid, command in workers.items() if alive(pid)], "workers left running"
+    assert main(["--resume", "--out", str(out)]) == 0
+    keys = [trial_key(t) for t in _trials(out)]
+    assert len(keys) == len(set(keys)) == 4 * 2  # four objects, two prompts each, top-1: each trial once

@@ -3,12 +3,18 @@
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import multiprocessing
+import os
+import signal
+import sys
+import threading
 import time
 import traceback
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -371,6 +377,22 @@ def worker_init(uses_torch: bool = False) -> None:
         pass
 
 
+def pool_worker_init(uses_torch: bool, driver: int) -> None:
+    """Set up a local pool's worker: it ends with its `driver` process (`die_with_parent`), then `worker_init`."""
+    die_with_parent(driver)
+    worker_init(uses_torch)
+
+
+def die_with_parent(parent: int) -> None:
+    """On Linux, have the kernel end this process when its parent dies (prctl PR_SET_PDEATHSIG), and end it now if
+    `parent` died already (while this process started): a run killed outright (SIGKILL, the OOM killer) leaves no
+    worker writing records into its --out behind it."""
+    if sys.platform.startswith("linux") and ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM) != 0:
+        LOG.warning("a worker cannot follow its parent's death (prctl: errno %d)", ctypes.get_errno())
+    if os.getppid() != parent:
+        os._exit(1)
+
+
 def is_complete(recorded: Recorded, object_id: str, config: RunConfig) -> bool:
     """Whether `out` already holds every trial of the object's (one seed) run on every robot and, on the twin,
     every method's segmentation and the threshold curve of each robot: then its task has nothing to add."""
@@ -449,8 +471,9 @@ def _run_pool(tasks: list[ObjectTask], workers: int, uses_torch: bool, on_status
     # not multiprocessing.Pool: its daemonic workers may not start the CoACD processes of a decomposition
     context = multiprocessing.get_context("spawn")
     unfinished = []
-    with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=context, initializer=worker_init,
-                             initargs=(uses_torch,)) as pool:
+    with _stopped_by_signals(), ProcessPoolExecutor(
+        min(workers, len(tasks)), mp_context=context, initializer=pool_worker_init, initargs=(uses_torch, os.getpid())
+    ) as pool:
         futures = {pool.submit(evaluate_object, task): task for task in tasks}
         try:
             for future in as_completed(futures):
@@ -466,6 +489,25 @@ def _run_pool(tasks: list[ObjectTask], workers: int, uses_torch: bool, on_status
             pool.shutdown(wait=False, cancel_futures=True)
             raise
     return unfinished
+
+
+@contextmanager
+def _stopped_by_signals():
+    """While active (on the main thread), SIGTERM raises `RunStopped`, so that the pool's workers are ended with
+    the run (`_run_pool`) instead of running on, orphaned, after its default death; SIGINT raises
+    KeyboardInterrupt as always."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum: int, frame) -> None:
+        raise RunStopped(f"stopped by {signal.Signals(signum).name}", 128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def record_extra(record: TrialRecord, config: RunConfig, cell: Cell) -> None:
