@@ -1,6 +1,8 @@
 """Perception shared by the twin and the robot: calibrated RGB-D frames -> object point cloud -> closed object mesh.
 
-Pipeline (`perceive_object`; point-cloud building blocks in seggrasp/cloud.py, the surface in seggrasp/surface.py):
+Pipeline (`perceive_object`; point-cloud building blocks in seggrasp/cloud.py, the surface in seggrasp/surface.py;
+among several objects, `split_instances` keeps every cluster on the table as its own instance after step 4, and
+`mesh_of` reconstructs one of them, step 6; `seggrasp.target` picks the requested one):
 
 1. **Back-projection** of every frame's depth with its `K` and `T_world_cam`, cropped to the `Workspace` box.
 2. **View registration** (on by default): point-to-plane ICP, damped and linearised about the target's centroid;
@@ -164,6 +166,66 @@ def fuse_oriented_cloud(
 ) -> OrientedCloud:
     """Like `fuse_point_cloud`, also returning camera-oriented normals and the fitted table plane."""
     config = config or PerceptionConfig()
+    cleaned = _cleaned_cloud(frames, workspace, config, seed)
+    keep = supported_clusters(cleaned.points, cleaned.height, config)
+    if keep.sum() < config.min_points:
+        raise ValueError(
+            f"only {int(keep.sum())} object points remain on the table (need {config.min_points}); is there an "
+            "object resting on the table inside the workspace?"
+        )
+    cloud = cleaned.oriented(keep, config)
+    logger.info("fused %d object points from %d frames", len(cloud.points), len(cloud.frames))
+    return cloud
+
+
+def split_instances(
+    frames: Sequence[Frame], workspace: Workspace, config: PerceptionConfig | None = None, seed: int = 0
+) -> list[OrientedCloud]:
+    """The objects on the table, one `OrientedCloud` each (largest first), from calibrated depth frames.
+
+    Fusion, table removal and clean-up are `fuse_oriented_cloud`'s (module docstring 1-5); then every cluster
+    resting on the table with at least `min_points` points is its own instance (`instance_labels`), its normals
+    estimated from its own points. Each shares the table plane and the registered frames, so `mesh_of` reconstructs
+    it alone, carved by what the cameras saw. Objects closer than `cluster_link` to each other are one instance.
+    """
+    config = config or PerceptionConfig()
+    cleaned = _cleaned_cloud(frames, workspace, config, seed)
+    labels = instance_labels(cleaned.points, cleaned.height, config)
+    if labels.max(initial=-1) < 0:
+        raise ValueError(
+            f"no cluster of at least {config.min_points} points rests on the table; is there an object on the "
+            "table inside the workspace?"
+        )
+    instances = [cleaned.oriented(labels == index, config) for index in range(labels.max() + 1)]
+    logger.info("split %d object instances (%s points) from %d frames", len(instances),
+                ", ".join(str(len(i.points)) for i in instances), len(frames))
+    return instances
+
+
+@dataclass
+class _CleanedCloud:
+    """The fused points above the table after clean-up (module docstring 1-4, before clustering): their height
+    above the fitted table, the direction to the camera that saw each, the table and the registered frames."""
+
+    points: np.ndarray
+    view_dir: np.ndarray
+    height: np.ndarray
+    table_normal: np.ndarray
+    table_offset: float
+    table_margin: float
+    frames: list[Frame]
+
+    def oriented(self, mask: np.ndarray, config: PerceptionConfig) -> OrientedCloud:
+        """The masked points with PCA normals oriented towards their cameras."""
+        points, view_dir = self.points[mask], self.view_dir[mask]
+        normals = estimate_normals(points, config.normal_neighbours)
+        normals *= np.where(np.einsum("ij,ij->i", normals, view_dir) < 0, -1.0, 1.0)[:, None]
+        return OrientedCloud(points, normals, self.table_normal, self.table_offset, self.table_margin, self.frames)
+
+
+def _cleaned_cloud(
+    frames: Sequence[Frame], workspace: Workspace, config: PerceptionConfig, seed: int
+) -> _CleanedCloud:
     if not frames:
         raise ValueError("no frames given")
     clouds, centres = [], []
@@ -201,17 +263,7 @@ def fuse_oriented_cloud(
     keep = statistical_inliers(points, config.outlier_neighbours, config.outlier_std_ratio)
     points, view_dir = points[keep], view_dir[keep]
     height = points @ table_normal - table_offset
-    keep = supported_clusters(points, height, config)
-    points, view_dir = points[keep], view_dir[keep]
-    if len(points) < config.min_points:
-        raise ValueError(
-            f"only {len(points)} object points remain on the table (need {config.min_points}); is there an "
-            "object resting on the table inside the workspace?"
-        )
-    normals = estimate_normals(points, config.normal_neighbours)
-    normals *= np.where(np.einsum("ij,ij->i", normals, view_dir) < 0, -1.0, 1.0)[:, None]
-    logger.info("fused %d object points from %d frames", len(points), len(frames))
-    return OrientedCloud(points, normals, table_normal, table_offset, table_margin, frames)
+    return _CleanedCloud(points, view_dir, height, table_normal, table_offset, table_margin, frames)
 
 
 def reconstruct_mesh(
@@ -297,7 +349,13 @@ def perceive_object(
 ) -> trimesh.Trimesh:
     """The object on the table as a closed mesh in the world frame, from calibrated RGB-D frames."""
     config = config or PerceptionConfig()
-    cloud = fuse_oriented_cloud(frames, workspace, config, seed)
+    return mesh_of(fuse_oriented_cloud(frames, workspace, config, seed), config)
+
+
+def mesh_of(cloud: OrientedCloud, config: PerceptionConfig | None = None) -> trimesh.Trimesh:
+    """The closed mesh of a fused cloud (or one instance of `split_instances`), closed on its table and carved by
+    what its frames saw empty (`seen_free_space`)."""
+    config = config or PerceptionConfig()
     table_plane = (cloud.table_normal, cloud.table_offset)
     free_space = seen_free_space(cloud.frames, config.carve_margin, table_plane, cloud.table_margin, config.max_depth)
     return reconstruct_mesh(cloud.points, cloud.normals, table_plane, config, free_space)
@@ -315,22 +373,49 @@ def supported_clusters(points: np.ndarray, height: np.ndarray, config: Perceptio
     point is more than `support_gap` above the table are not the object (a gripper above it); of the others the
     largest is kept, with any at least `cluster_keep_fraction` of its size.
     """
+    clusters = _table_clusters(points, height, config)
+    if clusters is None:
+        return np.zeros(len(points), dtype=bool)
+    keep, coarse, sizes, supported = clusters
+    chosen = supported & (sizes >= config.cluster_keep_fraction * sizes[supported].max())
+    keep[keep] = chosen[coarse]
+    return keep
+
+
+def instance_labels(points: np.ndarray, height: np.ndarray, config: PerceptionConfig) -> np.ndarray:
+    """Instance index per point (0 the largest instance, -1 none): the clusters of `supported_clusters` that rest
+    on the table, each with at least `min_points` points, every one its own instance."""
+    labels = np.full(len(points), -1, dtype=np.int64)
+    clusters = _table_clusters(points, height, config)
+    if clusters is None:
+        return labels
+    keep, coarse, sizes, supported = clusters
+    instances = [c for c in np.argsort(-sizes, kind="stable") if supported[c] and sizes[c] >= config.min_points]
+    index_of = np.full(len(sizes), -1, dtype=np.int64)
+    index_of[instances] = np.arange(len(instances))
+    labels[keep] = index_of[coarse]
+    return labels
+
+
+def _table_clusters(
+    points: np.ndarray, height: np.ndarray, config: PerceptionConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(mask of the points that are not specks, coarse cluster per such point, cluster sizes, whether each cluster
+    rests on the table), or None when no cluster rests on the table (see `supported_clusters`)."""
     if len(points) == 0:
-        return np.zeros(0, dtype=bool)
+        return None
     fine = radius_components(points, config.cluster_radius)
     keep = np.bincount(fine)[fine] >= config.min_cluster_points
     if not keep.any():
-        return keep
+        return None
     coarse = radius_components(points[keep], config.cluster_link)
     sizes = np.bincount(coarse)
     lowest = np.full(len(sizes), np.inf)
     np.minimum.at(lowest, coarse, height[keep])
     supported = lowest <= config.support_gap
     if not supported.any():
-        return np.zeros(len(points), dtype=bool)
-    chosen = supported & (sizes >= config.cluster_keep_fraction * sizes[supported].max())
-    keep[keep] = chosen[coarse]
-    return keep
+        return None
+    return keep, coarse, sizes, supported
 
 
 def fit_table_plane(

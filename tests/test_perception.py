@@ -17,10 +17,12 @@ from seggrasp.metrics import surface_distances  # noqa: E402
 from seggrasp.perception import (  # noqa: E402
     PerceptionConfig,
     Workspace,
+    fuse_oriented_cloud,
     fuse_point_cloud,
     icp_point_to_plane,
     perceive_object,
     reconstruct_mesh,
+    split_instances,
     supported_clusters,
 )
 
@@ -137,6 +139,15 @@ def test_fused_cloud_is_the_object_without_table(mug_scene):
     _, distance, _ = trimesh.proximity.closest_point(truth, points)
     assert np.percentile(distance, 99) < 0.004
     np.testing.assert_array_equal(points, fuse_point_cloud(frames, WORKSPACE, seed=0))  # deterministic
+
+
+def test_one_object_alone_is_one_instance_the_fused_cloud(mug_scene):
+    _, frames = mug_scene
+    instances = split_instances(frames, WORKSPACE, seed=0)
+    cloud = fuse_oriented_cloud(frames, WORKSPACE, seed=0)
+    assert len(instances) == 1
+    np.testing.assert_array_equal(instances[0].points, cloud.points)
+    np.testing.assert_array_equal(instances[0].normals, cloud.normals)
 
 
 @pytest.mark.slow
