@@ -25,6 +25,10 @@ class Frame:
     depth: np.ndarray  # (H, W) float32 metres; 0 where the camera has no reading
     K: np.ndarray  # (3, 3) pinhole intrinsics
     T_world_cam: np.ndarray  # (4, 4) camera (OpenCV) -> world
+    # the twin only: the body each pixel shows (H, W) int, -1 none (PyBullet's segmentation mask); None on a real
+    # cell. The simulated object detector (`seggrasp.detect.simulated.SimulatedObjectDetector`) and the scoring of
+    # perceived instances read it; perception never does.
+    instance_ids: np.ndarray | None = None
 
 
 #: The Robotiq 2F-85's grip force range (datasheet, N) and the cell's default setting (`seggrasp.hands.ROBOTIQ_2F85`,

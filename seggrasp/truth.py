@@ -55,6 +55,18 @@ class DetectorSpec:
             raise ValueError("the simulated detector needs ground-truth labels; this object has none")
         return make_detector(self.name, weights=self.weights, gt_labels=gt_labels, preset=self.preset, seed=self.seed)
 
+    def for_scene(self, scene: SceneTruth | None) -> Detector:
+        """The detector for the cameras' images of a scene; the simulated one boxes the bodies `scene` names
+        (`seggrasp.detect.simulated.SimulatedObjectDetector`, this spec's preset and seed)."""
+        if not self.needs_truth:
+            return make_detector(self.name, weights=self.weights)
+        if scene is None:
+            raise ValueError("the simulated detector finds objects in camera images from the twin's truth; this "
+                             "cell gives none")
+        from seggrasp.detect.simulated import SimulatedObjectDetector
+
+        return SimulatedObjectDetector(scene.names, preset=self.preset, seed=self.seed)
+
     def for_mesh(self, prompts: Sequence[str], rendered: PreparedMesh, truth_on_source: np.ndarray | None) -> Detector:
         """The detector for views of `rendered`, given the true prompt label of each of its source faces."""
         gt = None
@@ -82,6 +94,19 @@ def parse_detector(text: str, weights: str | None = None, seed: int = 0) -> Dete
     if not weights:
         raise ValueError(f"detector {name} needs weights (--weights: a local weights folder or a hub id)")
     return DetectorSpec(name, weights=str(weights), seed=seed)
+
+
+@dataclass(frozen=True)
+class SceneTruth:
+    """What the twin knows of the objects on its table: the requested object's body and the name a prompt gives
+    each body (`seggrasp.target.object_name`), by the body ids of `Frame.instance_ids`."""
+
+    target: int
+    names: dict[int, str]
+
+    def __post_init__(self) -> None:
+        if self.target not in self.names:
+            raise ValueError(f"the target body {self.target} is not among the named bodies {sorted(self.names)}")
 
 
 @dataclass

@@ -11,8 +11,10 @@ import numpy as np
 class View:
     """One rendered view.
 
-    `face_ids[v, u]` is the index of the (working) mesh face seen at pixel (u, v), or -1 for background. Camera
-    pose `T_world_cam` (OpenCV convention) is expressed in the frame the mesh was rendered in.
+    `face_ids[v, u]` is the index of the (working) mesh face seen at pixel (u, v), or -1 for background; in a
+    camera image (`seggrasp.target.camera_views`) no mesh is rendered and it holds the twin's body per pixel
+    (`Frame.instance_ids`), all -1 on a real cell. Camera pose `T_world_cam` (OpenCV convention) is expressed in
+    the frame the mesh was rendered in.
     """
 
     rgb: np.ndarray  # (H, W, 3) uint8

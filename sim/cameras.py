@@ -8,6 +8,9 @@ Depth noise follows Intel's depth-RMS model for stereo cameras, RMS = z^2 * subp
 D435's 50 mm baseline, 0.08 subpixel accuracy and its depth focal length (~447 px at 848x480, 87 deg HFOV): about
 3.6 mm at 1 m. Readings outside the depth range (min-z 0.105 m, 10 m) are 0, like the camera's holes; so are random
 dropouts and, with higher probability, pixels on depth discontinuities (stereo occlusion shadows).
+
+Each frame also carries the twin's truth of which body each pixel shows (`Frame.instance_ids`, from PyBullet's
+segmentation mask of the noise-free render), which a real camera cannot give.
 """
 
 from __future__ import annotations
@@ -119,7 +122,8 @@ class VirtualD435:
             depth[drop] = 0.0
             rgb = np.clip(rgb + rng.normal(0.0, self.noise.rgb_sigma, rgb.shape), 0, 255).astype(np.uint8)
         depth[(depth < D435_MIN_DEPTH) | (depth > D435_MAX_DEPTH)] = 0.0
-        return Frame(name=self.name, rgb=rgb, depth=depth.astype(np.float32), K=self.K.copy(), T_world_cam=self.T_world_cam.copy())
+        return Frame(name=self.name, rgb=rgb, depth=depth.astype(np.float32), K=self.K.copy(),
+                     T_world_cam=self.T_world_cam.copy(), instance_ids=np.maximum(segmentation, -1).astype(np.int32))
 
 
 def backproject(frame: Frame) -> np.ndarray:

@@ -23,6 +23,8 @@ from seggrasp.cell import Frame, GraspOutcome
 from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85
 from seggrasp.objects import ObjectModel
 from seggrasp.perception import Workspace
+from seggrasp.target import object_name
+from seggrasp.truth import SceneTruth
 from seggrasp.views import look_at
 from sim.cameras import DepthNoise, VirtualD435
 from sim.floating_gripper import FloatingGripper
@@ -212,6 +214,14 @@ class SimCell:
     def object_mesh(self) -> tuple[trimesh.Trimesh, np.ndarray]:
         self._require_scene()
         return self.current_object.mesh, self.world.body_pose(self.object_body)
+
+    def scene_truth(self) -> SceneTruth:
+        """The bodies on the table (the values of the frames' `instance_ids`) with their objects' names, the
+        requested one the target."""
+        self._require_scene()
+        names = {self.object_body: object_name(self.current_object.category)}
+        names.update({body: object_name(self._by_id[object_id].category) for body, object_id in self.neighbours})
+        return SceneTruth(self.object_body, names)
 
     def check_reach(self, T_world_grasp: np.ndarray, width: float) -> str:
         """Why `execute` would refuse this grasp in the scene as it is now - step 1 of `sim.grasp_primitive`: no IK

@@ -28,12 +28,21 @@ Randomness: the generator of view v and prompt k is seeded with (seed, v, k), so
 not depend on how many views are detected at once.
 
 Calibration: see the comment above `PRESETS`.
+
+`SimulatedObjectDetector` is the object-level counterpart for the twin's camera images, whose views say which body
+each pixel shows (`seggrasp.target.camera_views`). Per view and prompt (a prompt that names a body, matched
+case-insensitively): prominence `p` = the named body's pixels / all named bodies' pixels; a miss with probability
+`miss_rate + small_part_miss * (1 - s)`; else one box around the body's visible pixels, jittered, with the
+confidence above; then `Poisson(false_boxes)` false boxes, each around another visible named body (jittered,
+confidence uniform in `false_confidence`). A prompt that names no body gets only the false boxes. It uses the
+preset's miss, jitter, confidence and false-box numbers as they are (the typical preset by default; no object-level
+calibration); `whole_object_rate` and `confusion_rate` are failures on part prompts and do not apply.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -151,7 +160,7 @@ class SimulatedDetector:
             low, high = preset.false_confidence
             if part == UNKNOWN:
                 if rng.random() < preset.whole_object_rate:
-                    boxes.append(self._jitter(object_box, rng, width, height))
+                    boxes.append(_jitter(object_box, rng, preset, width, height))
                     scores.append(rng.uniform(low, high))
                     prompt_index.append(prompt)
             elif part_pixels[part] > 0:
@@ -164,7 +173,7 @@ class SimulatedDetector:
                         box = _tight_box(pixel_part == rng.choice(others))
                     else:
                         box = _tight_box(pixel_part == part)
-                    boxes.append(self._jitter(box, rng, width, height))
+                    boxes.append(_jitter(box, rng, preset, width, height))
                     confidence = preset.peak_confidence * (
                         preset.confidence_floor + (1.0 - preset.confidence_floor) * ease
                     ) + rng.normal(0.0, preset.confidence_noise)
@@ -178,11 +187,70 @@ class SimulatedDetector:
             return Detections.empty()
         return Detections(np.array(boxes), np.array(scores), np.array(prompt_index))
 
-    def _jitter(self, box: np.ndarray, rng: np.random.Generator, width: int, height: int) -> np.ndarray:
-        size = box[2:] - box[:2]
-        centre = 0.5 * (box[:2] + box[2:]) + rng.normal(0.0, self.preset.shift_sigma, 2) * size
-        size = size * np.exp(rng.normal(0.0, self.preset.scale_sigma, 2))
-        return _clip(np.concatenate([centre - 0.5 * size, centre + 0.5 * size]), width, height)
+
+class SimulatedObjectDetector:
+    """Boxes around the named objects in the twin's camera images plus the error model of a preset (module
+    docstring); implements `Detector`. `names` maps the twin's body ids (the views' face ids) to object names."""
+
+    def __init__(self, names: Mapping[int, str], preset: str = "typical", seed: int = 0) -> None:
+        if preset not in PRESETS:
+            raise ValueError(f"unknown simulated-detector preset {preset!r}; choose one of {sorted(PRESETS)}")
+        if not names or any(int(body) < 0 or not str(name).strip() for body, name in names.items()):
+            raise ValueError(f"the simulated object detector needs named bodies (ids >= 0), got {dict(names)}")
+        self.names = {int(body): str(name) for body, name in names.items()}
+        self.preset = PRESETS[preset]
+        self.seed = int(seed)
+        self.name = f"simulated-objects:{preset}"
+
+    def detect(self, views: Sequence[View], prompts: Sequence[str]) -> list[Detections]:
+        """One `Detections` per view; `prompt_index` refers to `prompts`."""
+        bodies = np.array(sorted(self.names))
+        named = [bodies[[self.names[b].strip().lower() == p.strip().lower() for b in bodies]] for p in prompts]
+        return [self._detect_view(index, view, bodies, named) for index, view in enumerate(views)]
+
+    def _detect_view(
+        self, view_index: int, view: View, bodies: np.ndarray, named: list[np.ndarray]
+    ) -> Detections:
+        pixels = view.face_ids
+        height, width = pixels.shape
+        counts = np.array([(pixels == body).sum() for body in bodies])
+        total = int(counts.sum())
+        boxes, scores, prompt_index = [], [], []
+        preset = self.preset
+        for prompt, targets in enumerate(named):
+            rng = np.random.default_rng((self.seed, view_index, prompt))
+            for body in targets:
+                count = counts[bodies == body][0]
+                if count == 0:
+                    continue
+                ease = min(1.0, count / total / FULL_PROMINENCE)
+                if rng.random() < preset.miss_rate + preset.small_part_miss * (1.0 - ease):
+                    continue
+                boxes.append(_jitter(_tight_box(pixels == body), rng, preset, width, height))
+                confidence = preset.peak_confidence * (
+                    preset.confidence_floor + (1.0 - preset.confidence_floor) * ease
+                ) + rng.normal(0.0, preset.confidence_noise)
+                scores.append(float(np.clip(confidence, MIN_CONFIDENCE, 1.0)))
+                prompt_index.append(prompt)
+            others = bodies[(counts > 0) & ~np.isin(bodies, targets)]
+            for _ in range(rng.poisson(preset.false_boxes) if len(others) else 0):
+                boxes.append(_jitter(_tight_box(pixels == rng.choice(others)), rng, preset, width, height))
+                scores.append(rng.uniform(*preset.false_confidence))
+                prompt_index.append(prompt)
+        if not boxes:
+            return Detections.empty()
+        return Detections(np.array(boxes), np.array(scores), np.array(prompt_index))
+
+
+def _jitter(
+    box: np.ndarray, rng: np.random.Generator, preset: SimulatedDetectorPreset, width: int, height: int
+) -> np.ndarray:
+    """The box with each side length scaled by exp(N(0, scale_sigma)) and the centre shifted by N(0, shift_sigma)
+    times the side length, clipped to the image."""
+    size = box[2:] - box[:2]
+    centre = 0.5 * (box[:2] + box[2:]) + rng.normal(0.0, preset.shift_sigma, 2) * size
+    size = size * np.exp(rng.normal(0.0, preset.scale_sigma, 2))
+    return _clip(np.concatenate([centre - 0.5 * size, centre + 0.5 * size]), width, height)
 
 
 def _tight_box(mask: np.ndarray) -> np.ndarray:

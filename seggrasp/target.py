@@ -1,0 +1,140 @@
+"""Which perceived instance is the requested object: detector boxes on the camera images, voted onto instances.
+
+`find_target` runs a `Detector` on the cameras' RGB images (`camera_views`) with the object's name as the prompt
+and scores each instance (`seggrasp.perception.split_instances`) by the sum over frames and boxes of the box's
+confidence times the share of the instance's points that lie inside the box and are visible in that frame
+(`visible_pixels`: in the image, in front of the camera and not behind the depth measured at their pixel by more
+than `depth_tolerance`; a pixel without a reading hides nothing). The best-scoring instance is the target; when
+none scores above zero, the target is not found.
+
+In the twin, frames say which body each pixel shows (`Frame.instance_ids`); `true_bodies` and `instance_iou`
+score an instance against that truth.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from seggrasp.cell import Frame
+from seggrasp.cloud import transform_points
+from seggrasp.detect.base import Detector
+from seggrasp.perception import OrientedCloud
+from seggrasp.views import View
+
+#: A point more than this (m) behind the depth measured at its pixel is hidden there (depth noise at 1 m is about
+#: 3.6 mm, voxel centroids move points by up to a voxel).
+DEPTH_TOLERANCE = 0.01
+
+
+@dataclass(frozen=True)
+class TargetSearch:
+    """The outcome of `find_target`: each instance's score and the chosen one (`index`, None when not found)."""
+
+    scores: tuple[float, ...]
+    index: int | None
+
+    @property
+    def found(self) -> bool:
+        return self.index is not None
+
+
+def object_name(category: str) -> str:
+    """The prompt that names an object of a category ("frying_pan" -> "frying pan")."""
+    return category.replace("_", " ").strip()
+
+
+def camera_views(frames: Sequence[Frame]) -> list[View]:
+    """The frames' RGB images as detector views; no mesh is rendered in them, so the face ids are the twin's body
+    per pixel (`Frame.instance_ids`) where the frame has them, else all -1."""
+    return [
+        View(frame.rgb, np.full(frame.depth.shape, -1, dtype=np.int64) if frame.instance_ids is None
+             else np.asarray(frame.instance_ids, dtype=np.int64), np.asarray(frame.K, dtype=float),
+             np.asarray(frame.T_world_cam, dtype=float))
+        for frame in frames
+    ]
+
+
+def visible_pixels(
+    points: np.ndarray, frame: Frame, depth_tolerance: float = DEPTH_TOLERANCE
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(column, row, visible) of world points (N, 3) in a frame: their pixel (rounded; valid where visible) and
+    whether they are in the image, in front of the camera and not behind the measured depth by more than
+    `depth_tolerance`."""
+    if not depth_tolerance > 0:
+        raise ValueError(f"depth_tolerance must be positive, got {depth_tolerance}")
+    in_camera = transform_points(np.asarray(points, dtype=float).reshape(-1, 3), np.linalg.inv(frame.T_world_cam))
+    z = in_camera[:, 2]
+    safe_z = np.where(z > 0, z, 1.0)
+    K = np.asarray(frame.K, dtype=float)
+    u = np.rint(K[0, 0] * in_camera[:, 0] / safe_z + K[0, 2]).astype(np.int64)
+    v = np.rint(K[1, 1] * in_camera[:, 1] / safe_z + K[1, 2]).astype(np.int64)
+    height, width = frame.depth.shape
+    visible = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    measured = np.zeros(len(z))
+    measured[visible] = frame.depth[v[visible], u[visible]]
+    visible &= (measured <= 0) | (z <= measured + depth_tolerance)
+    return u, v, visible
+
+
+def find_target(
+    instances: Sequence[OrientedCloud], detector: Detector, prompt: str, depth_tolerance: float = DEPTH_TOLERANCE
+) -> TargetSearch:
+    """The instance the detector's boxes for `prompt` cover most (module docstring); the instances' frames (the
+    registered ones, shared by all instances of one `split_instances`) are the images it looks at."""
+    if not prompt.strip():
+        raise ValueError("the target's prompt is empty; give the object's name, e.g. 'mug'")
+    if not instances:
+        raise ValueError("no instances to choose the target from")
+    frames = instances[0].frames
+    if any(instance.frames is not frames for instance in instances):
+        raise ValueError("the instances come from different captures; give the instances of one split_instances")
+    detections = detector.detect(camera_views(frames), [prompt])
+    if len(detections) != len(frames):
+        raise ValueError(f"detector {detector.name} returned {len(detections)} results for {len(frames)} images")
+    scores = np.zeros(len(instances))
+    for frame, found in zip(frames, detections):
+        if not len(found):
+            continue
+        for k, instance in enumerate(instances):
+            u, v, visible = visible_pixels(instance.points, frame, depth_tolerance)
+            centre_u, centre_v = u[visible] + 0.5, v[visible] + 0.5
+            for box, confidence in zip(found.boxes, found.scores):
+                inside = (centre_u >= box[0]) & (centre_u <= box[2]) & (centre_v >= box[1]) & (centre_v <= box[3])
+                scores[k] += float(confidence) * inside.sum() / len(instance.points)
+    best = int(np.argmax(scores))
+    return TargetSearch(tuple(float(s) for s in scores), best if scores[best] > 0 else None)
+
+
+def true_bodies(points: np.ndarray, frames: Sequence[Frame], depth_tolerance: float = DEPTH_TOLERANCE) -> np.ndarray:
+    """The twin's body of each point (N,): the body most frames in which it is visible show at its pixel
+    (`Frame.instance_ids`), -1 where no frame sees it (ties go to the smaller body id)."""
+    if any(frame.instance_ids is None for frame in frames):
+        raise ValueError("the frames carry no instance ids: the truth of which body a pixel shows is the twin's")
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
+    seen = [np.full(len(points), -1, dtype=np.int64) for _ in frames]
+    for body, frame in zip(seen, frames):
+        u, v, visible = visible_pixels(points, frame, depth_tolerance)
+        body[visible] = np.asarray(frame.instance_ids)[v[visible], u[visible]]
+    seen = np.stack(seen, axis=1)
+    bodies = np.unique(seen[seen >= 0])
+    if len(bodies) == 0:
+        return np.full(len(points), -1, dtype=np.int64)
+    votes = (seen[:, :, None] == bodies[None, None, :]).sum(axis=1)
+    return np.where(votes.max(axis=1) > 0, bodies[np.argmax(votes, axis=1)], -1)
+
+
+def instance_iou(instances: Sequence[OrientedCloud], index: int, body: int,
+                 depth_tolerance: float = DEPTH_TOLERANCE) -> float:
+    """IoU of instance `index`'s points and the points of all instances that the twin's masks assign to `body`
+    (`true_bodies`); 0 when neither has a point."""
+    if not 0 <= index < len(instances):
+        raise ValueError(f"instance index {index} is out of range for {len(instances)} instances")
+    points = np.concatenate([instance.points for instance in instances])
+    owner = np.repeat(np.arange(len(instances)), [len(instance.points) for instance in instances])
+    of_body = true_bodies(points, instances[0].frames, depth_tolerance) == body
+    chosen = owner == index
+    union = int((chosen | of_body).sum())
+    return float((chosen & of_body).sum() / union) if union else 0.0
