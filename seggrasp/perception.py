@@ -43,6 +43,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from seggrasp.cell import Frame
 from seggrasp.cloud import (
@@ -118,6 +119,7 @@ class PerceptionConfig:
     cluster_link: float = 0.03  # clusters closer than this are one object (bridges a thin stem seen badly)
     cluster_keep_fraction: float = 0.2  # clusters at least this fraction of the largest are kept
     support_gap: float = 0.02  # a cluster whose lowest point is higher above the table is not the object
+    instance_radius: float = 0.006  # objects in a scene stand millimetres apart: instances grow at this spacing
     normal_neighbours: int = 16
     mesh_voxel: float = 0.002  # marching-cubes grid spacing
     imls_bandwidth: float = 0.005  # Gaussian width of the IMLS weights (smooths depth noise)
@@ -130,7 +132,7 @@ class PerceptionConfig:
     def __post_init__(self) -> None:
         positive = [
             "max_depth", "carve_margin", "table_inlier", "voxel_size", "cluster_radius", "cluster_link", "mesh_voxel",
-            "imls_bandwidth",
+            "imls_bandwidth", "instance_radius",
         ]
         for name in positive:
             if not getattr(self, name) > 0:
@@ -183,10 +185,10 @@ def split_instances(
 ) -> list[OrientedCloud]:
     """The objects on the table, one `OrientedCloud` each (largest first), from calibrated depth frames.
 
-    Fusion, table removal and clean-up are `fuse_oriented_cloud`'s (module docstring 1-5); then every cluster
-    resting on the table with at least `min_points` points is its own instance (`instance_labels`), its normals
-    estimated from its own points. Each shares the table plane and the registered frames, so `mesh_of` reconstructs
-    it alone, carved by what the cameras saw. Objects closer than `cluster_link` to each other are one instance.
+    Fusion, table removal and clean-up are `fuse_oriented_cloud`'s (module docstring 1-5); then the points are
+    split into the groups that rest on the table, finer than one object's clean-up links them (`instance_labels`),
+    each with its normals estimated from its own points. Each shares the table plane and the registered frames, so
+    `mesh_of` reconstructs it alone, carved by what the cameras saw. Touching objects are one instance.
     """
     config = config or PerceptionConfig()
     cleaned = _cleaned_cloud(frames, workspace, config, seed)
@@ -383,18 +385,43 @@ def supported_clusters(points: np.ndarray, height: np.ndarray, config: Perceptio
 
 
 def instance_labels(points: np.ndarray, height: np.ndarray, config: PerceptionConfig) -> np.ndarray:
-    """Instance index per point (0 the largest instance, -1 none): the clusters of `supported_clusters` that rest
-    on the table, each with at least `min_points` points, every one its own instance."""
+    """Instance index per point (0 the largest instance, -1 none).
+
+    Objects in a scene stand closer to each other than `cluster_radius` and `cluster_link` (packed ones 5-30 mm),
+    so instances grow by single linkage at the finer `instance_radius`: every group of at least `min_points` points
+    whose lowest point rests on the table (within `support_gap`) is an instance. Every other group of at least
+    `min_cluster_points` (a part the cameras broke off, an object lying on another) joins the instance nearest to
+    it when that is within `cluster_link`; the rest are dropped (specks of noise, a gripper above the table).
+    Touching objects stay one instance, and a wine glass's bowl over a stem seen badly may join a neighbour
+    nearer than its foot.
+    """
     labels = np.full(len(points), -1, dtype=np.int64)
-    clusters = _table_clusters(points, height, config)
-    if clusters is None:
+    if len(points) == 0:
         return labels
-    keep, coarse, sizes, supported = clusters
-    instances = [c for c in np.argsort(-sizes, kind="stable") if supported[c] and sizes[c] >= config.min_points]
+    groups = radius_components(points, config.instance_radius)
+    sizes = np.bincount(groups)
+    lowest = np.full(len(sizes), np.inf)
+    np.minimum.at(lowest, groups, height)
+    by_size = np.argsort(-sizes, kind="stable")
+    resting = [g for g in by_size if sizes[g] >= config.min_points and lowest[g] <= config.support_gap]
+    if not resting:
+        return labels
     index_of = np.full(len(sizes), -1, dtype=np.int64)
-    index_of[instances] = np.arange(len(instances))
-    labels[keep] = index_of[coarse]
-    return labels
+    index_of[resting] = np.arange(len(resting))
+    labels = index_of[groups]
+    seeded = labels >= 0
+    tree, owner = cKDTree(points[seeded]), labels[seeded]
+    for group in by_size:
+        if index_of[group] >= 0 or sizes[group] < config.min_cluster_points:
+            continue
+        members = groups == group
+        distance, nearest = tree.query(points[members])
+        if distance.min() <= config.cluster_link:
+            labels[members] = owner[nearest[np.argmin(distance)]]
+    counts = np.bincount(labels[labels >= 0], minlength=len(resting))
+    rank = np.empty(len(resting), dtype=np.int64)
+    rank[np.argsort(-counts, kind="stable")] = np.arange(len(resting))
+    return np.where(labels >= 0, rank[np.maximum(labels, 0)], -1)
 
 
 def _table_clusters(

@@ -7,10 +7,11 @@ import numpy as np
 import pytest
 
 from seggrasp.cell import Frame
+from seggrasp.cloud import radius_components
 from seggrasp.detect.base import Detections
 from seggrasp.detect.simulated import PRESETS, SimulatedObjectDetector
-from seggrasp.objects import load_asset
-from seggrasp.perception import mesh_of, split_instances
+from seggrasp.objects import load_asset, load_asset_set
+from seggrasp.perception import PerceptionConfig, instance_labels, mesh_of, split_instances
 from seggrasp.target import camera_views, find_target, instance_iou, true_bodies, visible_pixels
 from seggrasp.views import View
 from sim.cell import SimCell
@@ -157,3 +158,47 @@ def test_perfect_object_boxes_are_tight_and_the_typical_error_model_follows_its_
     once, again = (SimulatedObjectDetector({7: "mug", 9: "bottle"}, "typical", 3).detect([view], ["mug"])[0]
                    for _ in range(2))
     np.testing.assert_array_equal(once.boxes, again.boxes)  # a seed repeats its errors
+
+
+def _box_surface(low, high, step=0.002) -> np.ndarray:
+    """Points on the top and the four sides of an axis-aligned box (m), `step` apart."""
+    xs, ys, zs = (np.arange(a, b + 1e-9, step) for a, b in zip(low, high))
+    top = np.array([(x, y, high[2]) for x in xs for y in ys])
+    sides = [np.array([(x, y, z) for x in xs for z in zs]) for y in (low[1], high[1])]
+    sides += [np.array([(x, y, z) for y in ys for z in zs]) for x in (low[0], high[0])]
+    return np.concatenate([top, *sides])
+
+
+def test_objects_a_few_millimetres_apart_are_separate_instances_and_fragments_join_the_nearest():
+    config = PerceptionConfig()
+    left = _box_surface((0.0, 0.0, 0.0), (0.05, 0.05, 0.06))
+    right = _box_surface((0.058, 0.0, 0.0), (0.1, 0.05, 0.04))  # 8 mm beside it, shorter
+    bowl = _box_surface((0.0, 0.0, 0.075), (0.05, 0.05, 0.08))  # 15 mm above the left box, not on the table
+    speck = np.array([[0.3, 0.3, 0.1]] * 5) + np.arange(5)[:, None] * 0.001
+    points = np.concatenate([left, right, bowl, speck])
+    parts = np.repeat([0, 1, 2, 3], [len(left), len(right), len(bowl), len(speck)])
+    assert len(np.unique(radius_components(points[parts < 2], config.cluster_link))) == 1  # one object's links
+    labels = instance_labels(points, points[:, 2], config)
+    assert labels.max() == 1
+    assert len(set(labels[parts == 0])) == 1 and len(set(labels[parts == 1])) == 1
+    assert labels[parts == 0][0] == 0 != labels[parts == 1][0]  # the larger one first
+    assert np.all(labels[parts == 2] == 0) and np.all(labels[parts == 3] == -1)
+    assert np.all(instance_labels(points[parts >= 2], points[parts >= 2][:, 2], config) == -1)  # nothing rests
+
+
+def test_a_packed_scene_as_it_settled_is_split_into_its_objects():
+    """The twin's packed scene of seed 0 for the tall mug: mug, eyeglasses, wine glass and toothbrush 5-30 mm
+    apart, seen by the two cameras at their full resolution."""
+    cell = SimCell(objects=load_asset_set(), scene="packed", objects_per_scene=4, seed=0)
+    try:
+        cell.reset(seed=0, object_id="mug_tall")
+        truth = cell.scene_truth()
+        instances = split_instances(cell.capture(), cell.workspace)
+    finally:
+        cell.close()
+    assert sorted(truth.names.values()) == ["eyeglasses", "mug", "toothbrush", "wine glass"]
+    assert len(instances) == 4
+    best = {body: max(range(4), key=lambda k: instance_iou(instances, k, body)) for body in truth.names}
+    ious = {truth.names[body]: instance_iou(instances, k, body) for body, k in best.items()}
+    print("IoU per object", ious)
+    assert len(set(best.values())) == 4 and min(ious.values()) > 0.8 and ious["mug"] > 0.95
