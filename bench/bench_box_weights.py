@@ -31,7 +31,7 @@ import numpy as np
 from bench.bench_seg import LabelledMesh, paired_over_seeds, quality_report, twin_meshes, ycb_meshes  # noqa: E402
 from seggrasp.decompose import DecompositionConfig, decompose_sweep  # noqa: E402
 from seggrasp.detect.base import Detections  # noqa: E402
-from seggrasp.detect.hf_common import box_iou  # noqa: E402
+from seggrasp.detect.base import box_iou  # noqa: E402
 from seggrasp.detect.simulated import SimulatedDetector  # noqa: E402
 from seggrasp.fusion import refine_labels, refine_scores  # noqa: E402
 from seggrasp.io import atomic_write_text  # noqa: E402

@@ -2,10 +2,11 @@
 
 `find_target` runs a `Detector` on the cameras' RGB images (`camera_views`) with the object's name as the prompt
 and scores each instance (`seggrasp.perception.split_instances`) by the sum over frames and boxes of the box's
-confidence times the share of the instance's points that lie inside the box and are visible in that frame
-(`visible_pixels`: in the image, in front of the camera and not behind the depth measured at their pixel by more
-than `depth_tolerance`; a pixel without a reading hides nothing). The best-scoring instance is the target; when
-none scores above zero, the target is not found.
+confidence times its IoU with the box around the instance's points visible in that frame (`visible_pixels`: in the
+image, in front of the camera and not behind the depth measured at their pixel by more than `depth_tolerance`; a
+pixel without a reading hides nothing). The boxes' IoU, not the share of an instance's points inside a box, so
+that a small object standing inside a frying pan's box does not win the pan's request. The best-scoring instance
+is the target; when none scores above zero, the target is not found.
 
 In the twin, frames say which body each pixel shows (`Frame.instance_ids`); `true_bodies` and `instance_iou`
 score an instance against that truth.
@@ -14,15 +15,17 @@ score an instance against that truth.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 
 from seggrasp.cell import Frame
 from seggrasp.cloud import transform_points
-from seggrasp.detect.base import Detector
-from seggrasp.perception import OrientedCloud
+from seggrasp.detect.base import Detector, box_iou
 from seggrasp.views import View
+
+if TYPE_CHECKING:
+    from seggrasp.perception import OrientedCloud
 
 #: A point more than this (m) behind the depth measured at its pixel is hidden there (depth noise at 1 m is about
 #: 3.6 mm, voxel centroids move points by up to a voxel).
@@ -100,10 +103,9 @@ def find_target(
             continue
         for k, instance in enumerate(instances):
             u, v, visible = visible_pixels(instance.points, frame, depth_tolerance)
-            centre_u, centre_v = u[visible] + 0.5, v[visible] + 0.5
-            for box, confidence in zip(found.boxes, found.scores):
-                inside = (centre_u >= box[0]) & (centre_u <= box[2]) & (centre_v >= box[1]) & (centre_v <= box[3])
-                scores[k] += float(confidence) * inside.sum() / len(instance.points)
+            if visible.any():
+                seen = np.array([u[visible].min(), v[visible].min(), u[visible].max() + 1, v[visible].max() + 1])
+                scores[k] += float(np.dot(found.scores, box_iou(seen.astype(float), np.asarray(found.boxes, float))))
     best = int(np.argmax(scores))
     return TargetSearch(tuple(float(s) for s in scores), best if scores[best] > 0 else None)
 

@@ -11,7 +11,7 @@ from seggrasp.cloud import radius_components
 from seggrasp.detect.base import Detections
 from seggrasp.detect.simulated import PRESETS, SimulatedObjectDetector
 from seggrasp.objects import load_asset, load_asset_set
-from seggrasp.perception import PerceptionConfig, instance_labels, mesh_of, split_instances
+from seggrasp.perception import OrientedCloud, PerceptionConfig, instance_labels, mesh_of, split_instances
 from seggrasp.target import camera_views, find_target, instance_iou, true_bodies, visible_pixels
 from seggrasp.views import View
 from sim.cell import SimCell
@@ -130,6 +130,30 @@ def test_a_point_behind_the_measured_depth_is_hidden():
     assert visible.tolist() == [True, False, True, False, False, True]
     assert (u[0], v[0], u[2], v[2]) == (50, 50, 70, 70)
 
+
+class OneBox:
+    """A detector that boxes the same pixels in every image."""
+
+    name = "one box"
+
+    def __init__(self, box):
+        self.box = box
+
+    def detect(self, views, prompts):
+        return [Detections(np.array([self.box], float), np.array([0.9]), np.array([0])) for _ in views]
+
+
+def test_a_small_object_inside_a_large_one_s_box_does_not_win_its_request():
+    K = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    frame = Frame("flat", np.zeros((100, 100, 3), np.uint8), np.full((100, 100), 2.0, np.float32), K, np.eye(4))
+    grid = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 13), np.linspace(-0.3, 0.3, 13)), -1).reshape(-1, 2)
+    pan = np.c_[grid, np.ones(len(grid))]  # pixels 20-80 at 1 m
+    cup = np.c_[grid[::4] * 0.1 + 0.1, np.ones(len(grid[::4]))]  # a few pixels around (60, 60)
+    frames = [frame]
+    clouds = [OrientedCloud(points, np.tile([0, 0, -1.0], (len(points), 1)), np.array([0, 0, 1.0]), 0.0, 0.004,
+                            frames) for points in (cup, pan)]
+    search = find_target(clouds, OneBox([20, 20, 81, 81]), "frying pan")  # the pan's box holds all of the cup
+    assert search.index == 1 and search.scores[1] > 0.85 and search.scores[0] < 0.05
 
 def _two_bodies_view() -> View:
     ids = np.full((120, 160), -1, dtype=np.int64)

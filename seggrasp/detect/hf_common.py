@@ -14,6 +14,7 @@ from typing import Any, Callable, Sequence, TypeVar
 
 import numpy as np
 
+from seggrasp.detect.base import box_iou
 from seggrasp.labels import check_prompts, prompt_key
 from seggrasp.views import View
 
@@ -234,19 +235,6 @@ def nms_per_prompt(boxes: np.ndarray, scores: np.ndarray, prompt_index: np.ndarr
             candidates = rest[box_iou(boxes[best], boxes[rest]) <= iou_threshold]
     keep_array = np.array(sorted(keep, key=lambda i: (-scores[i], i)), dtype=np.int64)
     return keep_array
-
-
-def box_iou(box: np.ndarray, others: np.ndarray) -> np.ndarray:
-    """IoU of one xyxy box against an (N, 4) array of boxes."""
-    x1 = np.maximum(box[0], others[:, 0])
-    y1 = np.maximum(box[1], others[:, 1])
-    x2 = np.minimum(box[2], others[:, 2])
-    y2 = np.minimum(box[3], others[:, 3])
-    intersection = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area = (box[2] - box[0]) * (box[3] - box[1])
-    other_areas = (others[:, 2] - others[:, 0]) * (others[:, 3] - others[:, 1])
-    union = area + other_areas - intersection
-    return np.where(union > 0, intersection / np.maximum(union, 1e-12), 0.0)
 
 
 def check_unit_interval(value: float, what: str) -> float:
