@@ -55,9 +55,11 @@ MAX_ROTATION_DEG = 15.0
 # Why a trial failed. The cell names the physical failures; the harness adds `no_grasp` (the method planned no
 # grasp for the slot), `wrong_part` (held, but on another part than the prompted one) and `infeasible` (no grasp
 # candidate of the cell's hand holds the part, judged before the robot moves: seggrasp.grasp.feasibility; the
-# trial's message says why). "" means success.
+# trial's message says why) and `not_found` (among several objects on the table, the detector's boxes for the
+# object's name cover none of the perceived instances: seggrasp.target; nothing is planned for the request). ""
+# means success.
 FAILURES = ("unreachable", "collision", "pushed", "empty_close", "slipped", "rotated", "wrong_part", "no_grasp",
-            "infeasible")
+            "infeasible", "not_found")
 
 
 @dataclass

@@ -17,6 +17,13 @@ Before any slot moves the robot, each request is judged (`seggrasp.grasp.feasibi
 the cell's hand hold the part (contacts on it, pads pressing on it)? The part is the true one when there is ground
 truth (the twin), else the plan's selection. The slots of an infeasible request are not executed: their records
 say `failure="infeasible"` and why in `message`.
+
+Among several objects on the table (`EpisodeSettings.among_others`, with `perceive`), the observation splits the
+perceived points into instances and finds the requested one with the harness's detector on the camera images, the
+object's name the prompt (`seggrasp.target`); only that instance's mesh is reconstructed. When the detector finds
+it in none, nothing is planned: every slot of every request records `failure="not_found"`. Records say whether
+the target was found and, with the twin's truth of the scene (`GroundTruth.scene`), the chosen instance's IoU
+(`seggrasp.target.instance_iou`).
 """
 
 from __future__ import annotations
@@ -25,13 +32,14 @@ import hashlib
 import json
 import logging
 from dataclasses import asdict, dataclass, field
-from typing import Callable, NamedTuple, Protocol, Sequence
+from typing import TYPE_CHECKING, Callable, NamedTuple, Protocol, Sequence
 
 import numpy as np
 import trimesh
 from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import Cell, GraspOutcome
+from seggrasp.detect.base import Detector
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.antipodal import AntipodalConfig
 from seggrasp.grasp.feasibility import Feasibility, judge_requests
@@ -42,7 +50,12 @@ from seggrasp.labels import prompt_index
 from seggrasp.mesh import mesh_hash, prepare_mesh
 from seggrasp.method import ORACLE, ObjectSegmenter, PartPlan, check_method
 from seggrasp.objects import ObjectModel
-from seggrasp.truth import DetectorSpec, GroundTruth
+from seggrasp.target import object_name
+from seggrasp.truth import ORACLE_DETECTOR, DetectorSpec, GroundTruth
+
+if TYPE_CHECKING:
+    from seggrasp.perception import OrientedCloud
+    from seggrasp.target import TargetSearch
 
 LOG = logging.getLogger(__name__)
 #: Slot planning looks this many times top-k deep into each prompt's ranked grasps for ones the arm reaches, and
@@ -53,11 +66,20 @@ MIN_REACH_DEPTH = 30
 
 @dataclass
 class Observation:
-    """The mesh the episode plans on and its pose. A perceived mesh is already in the world (`T_world_obj` = I)."""
+    """The mesh the episode plans on and its pose. A perceived mesh is already in the world (`T_world_obj` = I).
+    Among several objects: the perceived `instances` and the `search` for the target among them; a target not
+    found leaves `mesh` None."""
 
-    mesh: trimesh.Trimesh
+    mesh: trimesh.Trimesh | None
     T_world_obj: np.ndarray
     perceived: bool = False
+    instances: list[OrientedCloud] = field(default_factory=list)
+    search: TargetSearch | None = None
+
+    @property
+    def found(self) -> bool:
+        """Whether there is a mesh to plan on (False only for a target not found among several objects)."""
+        return self.mesh is not None
 
 
 @dataclass
@@ -88,6 +110,7 @@ class EpisodeSettings:
     top_k: int = TOP_K
     perceive: bool = False
     workspace: object | None = None  # seggrasp.perception.Workspace when perceiving
+    among_others: bool = False  # the table holds other objects too: perceiving finds the target (seggrasp.target)
     decomposition_cache: str | None = None
     decomposition_workers: int | None = None
     decomposition_seed: int | None = None  # CoACD's seed (None: `seed`); a harness may keep it at the bundled one
@@ -147,6 +170,8 @@ class TrialRecord:
     message: str = ""
     failure: str = ""
     infeasible: bool | None = None  # the request was judged infeasible (None: not judged, e.g. a gym action)
+    target_found: bool | None = None  # among several objects: the target was found (None: nothing to find)
+    target_iou: float | None = None  # ...and the chosen instance's IoU against the twin's truth (None: unknown)
     extra: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
@@ -162,15 +187,27 @@ def table_plane_in_object_frame(mesh: trimesh.Trimesh, T_world_obj: np.ndarray) 
     return np.r_[normal, T[2, 3] - float(world_z.min())]
 
 
-def observe(cell: Cell, perceive: bool = False, workspace=None) -> Observation:
-    """The object's mesh and pose from the cell, or, with `perceive`, a mesh fused from `cell.capture()`."""
-    if perceive:
-        from seggrasp.perception import perceive_object  # only episodes that perceive need it
+def observe(
+    cell: Cell, perceive: bool = False, workspace=None, detector: Detector | None = None, name: str = ""
+) -> Observation:
+    """The object's mesh and pose from the cell, or, with `perceive`, a mesh fused from `cell.capture()`; with a
+    `detector` too, the table holds several objects: the mesh of the instance the detector's boxes for `name`
+    cover most (`seggrasp.target.find_target`), None when it boxes none."""
+    if not perceive:
+        if detector is not None:
+            raise ValueError("finding the object among others needs perception (perceive=True)")
+        mesh, T_world_obj = cell.object_mesh()
+        return Observation(mesh, np.asarray(T_world_obj, dtype=np.float64))
+    from seggrasp.perception import mesh_of, perceive_object, split_instances  # only episodes that perceive
 
-        mesh = perceive_object(cell.capture(), workspace)
-        return Observation(mesh, np.eye(4), perceived=True)
-    mesh, T_world_obj = cell.object_mesh()
-    return Observation(mesh, np.asarray(T_world_obj, dtype=np.float64))
+    if detector is None:
+        return Observation(perceive_object(cell.capture(), workspace), np.eye(4), perceived=True)
+    from seggrasp.target import find_target
+
+    instances = split_instances(cell.capture(), workspace)
+    search = find_target(instances, detector, name)
+    mesh = mesh_of(instances[search.index]) if search.found else None
+    return Observation(mesh, np.eye(4), True, instances, search)
 
 
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:
@@ -267,6 +304,7 @@ class Episode:
         self.vote_cache = vote_cache
         self.outcome_cache = outcome_cache
         self._observation: Observation | None = None
+        self._target_iou: float | None = None
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
@@ -280,11 +318,33 @@ class Episode:
         if self._observation is None:
             self._reset_scene()
             s = self.settings
-            self._observation = observe(self.cell, perceive=s.perceive, workspace=s.workspace)
-            if self.truth is not None:
-                o = self._observation
+            self._observation = o = observe(self.cell, s.perceive, s.workspace, self._object_detector(),
+                                            object_name(self.context.category))
+            if self.truth is not None and o.found:
                 self._truth_on_mesh = self.truth.on_mesh(o.mesh, o.T_world_obj, o.perceived, self.context.object_id)
         return self._observation
+
+    def _object_detector(self) -> Detector | None:
+        """The detector that finds the object among others on the camera images (None: the object is alone, or
+        the episode does not perceive)."""
+        if not (self.settings.perceive and self.settings.among_others):
+            return None
+        if self.detector is None:
+            raise ValueError("finding the object among others needs a detector; this episode was given none")
+        scene = self.truth.scene() if self.truth is not None and self.truth.scene is not None else None
+        return self.detector.for_scene(scene)
+
+    @property
+    def target_iou(self) -> float | None:
+        """The IoU of the instance chosen as the target against the twin's truth (`seggrasp.target.instance_iou`);
+        None when nothing was searched, the target was not found or there is no truth of the scene."""
+        o = self.observation
+        if self._target_iou is None and o.found and o.search is not None and self.truth is not None \
+                and self.truth.scene is not None:
+            from seggrasp.target import instance_iou
+
+            self._target_iou = instance_iou(o.instances, o.search.index, self.truth.scene().target)
+        return self._target_iou
 
     @property
     def truth_on_mesh(self) -> np.ndarray | None:
@@ -422,11 +482,17 @@ class Episode:
     ) -> list[TrialRecord]:
         """Plan `method` and execute its slots for each target prompt (those `skip` accepts are left out). Hooks:
         `on_plan` sees the plan before any slot, `before` each slot about to be executed, `on_record` its record."""
-        plan = self.plan(method)
-        if on_plan is not None:
-            on_plan(plan)
+        if self.observation.found:
+            plan = self.plan(method)
+            if on_plan is not None:
+                on_plan(plan)
+            slots = self.slots(plan, targets)
+        else:  # the target is not among the instances: nothing to plan on
+            detector = ORACLE_DETECTOR if method == ORACLE else self.detector.label
+            slots = [Slot(method, detector, k, rank, None, 0) for k in self.target_indices(targets)
+                     for rank in range(self.settings.top_k)]
         records = []
-        for slot in self.slots(plan, targets):
+        for slot in slots:
             if skip is not None and skip(slot):
                 continue
             if before is not None:
@@ -453,6 +519,16 @@ class Episode:
             prompt=context.prompts[slot.prompt_index], prompt_index=slot.prompt_index, rank=slot.rank,
             seed=self.settings.seed, scene_seed=context.scene_seed, n_candidates=slot.n_candidates, executed=False,
         )
+        o = self.observation
+        if o.search is not None:
+            record.target_found, record.target_iou = o.search.found, self.target_iou
+        if not o.found:
+            record.contacts_on_part = False if self.truth is not None else None
+            record.success = False if self.truth is not None else None
+            record.message = f"the detector found the {object_name(context.category)} in none of the " \
+                             f"{len(o.instances)} objects on the table"
+            record.failure = "not_found"
+            return record
         if slot.feasibility is not None:
             record.infeasible = not slot.feasibility.feasible
         if record.infeasible:

@@ -27,6 +27,8 @@ from seggrasp.objects import ObjectModel
 SIMULATED_PRESETS = tuple(PRESETS)
 #: The real (transformers) detectors; they need weights.
 REAL_DETECTORS = tuple(HF_MODELS)
+#: How the oracle's records name their "detector": its labels are the ground truth's.
+ORACLE_DETECTOR = "ground-truth"
 
 
 @dataclass(frozen=True)
@@ -114,21 +116,25 @@ class GroundTruth:
     """The labelled mesh of an object (object frame) with the prompt index of each face (-1 elsewhere).
 
     `true_pose` returns the labelled object's pose in the world; only a simulator knows it, and it is needed only
-    to score a mesh the episode perceived from cameras (which lives in the world frame).
+    to score a mesh the episode perceived from cameras (which lives in the world frame). `scene`, in a scene of
+    several objects in the twin, returns which body is which (`SceneTruth`), for the simulated object detector and
+    for scoring the instance chosen as the target.
     """
 
     mesh: trimesh.Trimesh
     labels: np.ndarray
     true_pose: Callable[[], np.ndarray] | None = None
+    scene: Callable[[], SceneTruth] | None = None
 
     @classmethod
     def of_object(
-        cls, model: ObjectModel, prompts: Sequence[str], true_pose: Callable[[], np.ndarray] | None = None
+        cls, model: ObjectModel, prompts: Sequence[str], true_pose: Callable[[], np.ndarray] | None = None,
+        scene: Callable[[], SceneTruth] | None = None,
     ) -> "GroundTruth | None":
         """Ground truth of a twin object for `prompts` (None when the object has no labels)."""
         if model.labels is None:
             return None
-        return cls(model.mesh, model.labels.remap_to(list(prompts)), true_pose)
+        return cls(model.mesh, model.labels.remap_to(list(prompts)), true_pose, scene)
 
     def _T_truth_world(self, T_world_obj: np.ndarray, perceived: bool) -> np.ndarray:
         if not perceived:
@@ -176,7 +182,7 @@ class GroundTruth:
 
     def oracle_plan(self, labels_on_mesh: np.ndarray) -> PartPlan:
         """The `oracle` method's plan: the true labels of the planning mesh."""
-        return PartPlan("oracle", "ground-truth", np.array(labels_on_mesh, dtype=np.int64, copy=True))
+        return PartPlan("oracle", ORACLE_DETECTOR, np.array(labels_on_mesh, dtype=np.int64, copy=True))
 
 
 def transfer_labels(

@@ -3,6 +3,8 @@ boxes on the camera images (`seggrasp.target`), and the twin's object detector o
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -10,11 +12,15 @@ from seggrasp.cell import Frame
 from seggrasp.cloud import radius_components
 from seggrasp.detect.base import Detections
 from seggrasp.detect.simulated import PRESETS, SimulatedObjectDetector
+from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings
 from seggrasp.objects import load_asset, load_asset_set
 from seggrasp.perception import OrientedCloud, PerceptionConfig, instance_labels, mesh_of, split_instances
 from seggrasp.target import camera_views, find_target, instance_iou, true_bodies, visible_pixels
+from seggrasp.truth import GroundTruth
 from seggrasp.views import View
 from sim.cell import SimCell
+from sim.evaluate import main
+from sim.evaluate.runner import workspace_of
 
 IDS = ("mug_classic", "hammer_claw", "bottle_water")
 #: Where the three objects are moved to, well apart (more than `PerceptionConfig.cluster_link`).
@@ -226,3 +232,44 @@ def test_a_packed_scene_as_it_settled_is_split_into_its_objects():
     ious = {truth.names[body]: instance_iou(instances, k, body) for body, k in best.items()}
     print("IoU per object", ious)
     assert len(set(best.values())) == 4 and min(ious.values()) > 0.8 and ious["mug"] > 0.95
+
+
+class NoObjectSpec:
+    """A detector choice whose detector never boxes anything on the cameras' images."""
+
+    label = "none"
+
+    def for_scene(self, scene):
+        return NoBoxes()
+
+
+def test_a_target_the_detector_finds_in_no_instance_fails_every_slot_as_not_found():
+    cell = SimCell(objects=[load_asset(i) for i in IDS], embodiment="floating", scene="packed", objects_per_scene=3,
+                   seed=3, image_size=(320, 240))
+    try:
+        cell.reset(seed=3, object_id="mug_classic")
+        model = cell.current_object
+        context = EpisodeContext.from_object(model, 3)
+        truth = GroundTruth.of_object(model, context.prompts, lambda: cell.object_mesh()[1], cell.scene_truth)
+        settings = EpisodeSettings(top_k=2, perceive=True, workspace=workspace_of(cell), among_others=True)
+        episode = Episode(cell, context, NoObjectSpec(), truth, settings)
+        records = episode.run("oracle")
+    finally:
+        cell.close()
+    assert len(records) == 2 * len(context.prompts)
+    assert all(r.failure == "not_found" and not r.executed and r.success is False for r in records)
+    assert all(r.target_found is False and r.target_iou is None for r in records)
+    assert records[0].message == "the detector found the mug in none of the 3 objects on the table"
+
+
+def test_evaluate_finds_the_object_among_others_from_the_cameras(tmp_path):
+    out = tmp_path / "run"
+    argv = ["--scene", "packed", "--objects-per-scene", "3", "--objects", "mug_classic", "--methods", "oracle",
+            "--top-k", "1", "--perceive", "--detector", "perfect", "--out", str(out)]
+    assert main(argv) == 0
+    trials = [json.loads(line) for line in (out / "trials.jsonl").read_text().splitlines()]
+    assert trials and all(t["target_found"] is True and t["target_iou"] > 0.8 for t in trials)
+    summary = json.loads((out / "summary.json").read_text())
+    search = summary["methods"]["oracle"]["target_search"]["packed"]
+    assert search["found"] == 1.0 and search["requests"] == 2 and search["instance_iou"] > 0.8
+    assert "## Finding the object among the others" in (out / "summary.md").read_text()

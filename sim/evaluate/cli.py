@@ -100,7 +100,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--scene", choices=SCENE_KINDS, default=None,
                         help="twin only: each object among other objects of the twin on the table, packed (upright, "
                         "close) or pile (dropped onto each other); the grasp must not hit them and the trial records "
-                        "how far each moved (default: the object alone)")
+                        "how far each moved; with --perceive the object is found among them from the cameras "
+                        "(split into instances, the one the detector boxes for its name; not found: every slot "
+                        "fails as not_found) (default: the object alone)")
     parser.add_argument("--objects-per-scene", type=int, default=None, metavar="N",
                         help=f"--scene: objects on the table, the requested one included, {SCENE_SIZE[0]}-"
                         f"{SCENE_SIZE[1]} (default: {DEFAULT_OBJECTS_PER_SCENE})")
@@ -236,9 +238,6 @@ def _check_backend(args: argparse.Namespace) -> None:
         raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
     if getattr(args, "scene", None) is not None and args.backend == "real":
         raise ValueError("--scene lays out the twin's table; the real cell grasps what is on its table (drop --scene)")
-    if getattr(args, "scene", None) is not None and getattr(args, "perceive", False):
-        raise ValueError("--perceive with --scene: finding the requested object among others from the cameras is "
-                         "not built yet; drop --perceive (the twin's truth names the object)")
 
 
 def check_grip_force(grip_force: float | None, robots: Sequence[str]) -> None:

@@ -112,6 +112,7 @@ def grasp_metrics(rows: list[dict]) -> dict:
         "infeasible_requests": sum(v is True for v in requests.values()),
         "judged_requests": sum(v is not None for v in requests.values()),
         **_disturbance(executed),
+        **_target_search(rows),
     }
 
 
@@ -130,6 +131,27 @@ def _disturbance(executed: list[dict]) -> dict:
     lifted = [(r.get("outcome") or {}).get("lifted_along", 0) > 0 for r in executed]
     return {"disturbance_mm": 1000 * float(np.mean(farthest)),
             "disturbed": float(np.mean([f >= DISTURBED for f in farthest])), "lifted_along": float(np.mean(lifted))}
+
+
+def _target_search(rows: list[dict]) -> dict:
+    """In a scene run that perceived, per scene kind over the requests: how many, the share whose target was found
+    among the perceived instances and the mean IoU of the chosen instance against the twin's truth, over the
+    requests it was found in ({} when no record searched for its target)."""
+    requests: dict[tuple, dict] = {}
+    for r in rows:
+        if r.get("target_found") is not None:
+            kind = ((r.get("extra") or {}).get("scene") or {}).get("kind", "?")
+            requests.setdefault((kind, r["object_id"], int(r.get("seed", 0)), r["prompt"]), r)
+    if not requests:
+        return {}
+    search = {}
+    for kind in sorted({key[0] for key in requests}):
+        found = [r["target_found"] for key, r in requests.items() if key[0] == kind]
+        ious = [r["target_iou"] for key, r in requests.items() if key[0] == kind and r["target_found"]
+                and r.get("target_iou") is not None]
+        search[kind] = {"requests": len(found), "found": float(np.mean(found)),
+                        "instance_iou": float(np.mean(ious)) if ious else None}
+    return {"target_search": search}
 
 
 def infeasible_parts(rows: list[dict]) -> dict:
@@ -329,12 +351,28 @@ def _neighbours(methods: dict) -> list[str]:
                      "lifted one along", "executed"], rows)]
 
 
+def _target_table(methods: dict) -> list[str]:
+    """A perceived scene run's table of how often each method's requests found their object among the others."""
+    rows = [[name, kind, str(v["requests"]), _fmt(v["found"]), _fmt(v["instance_iou"])]
+            for name, m in methods.items() for kind, v in m.get("target_search", {}).items()]
+    if not rows:
+        return []
+    return ["", "## Finding the object among the others", "",
+            "Per request: whether the detector's boxes for the object's name on the camera images picked one of the "
+            "perceived instances (not found: every slot fails as `not_found`), and the chosen instance's IoU with "
+            "the object's points by the twin's segmentation masks (mean over the requests it was found in; "
+            "seggrasp/target.py).", "",
+            *_table(["method", "scene", "requests", "target found", "instance IoU"], rows)]
+
+
 def _body(summary: dict, seeds: Sequence[int]) -> list[str]:
-    """One system's sections: the interval tables, Tables I-III, what a scene's grasps did to the other objects,
-    per-category results, failures, the requests it cannot hold and the threshold curve."""
+    """One system's sections: the interval tables, Tables I-III, how often a perceived scene found the object,
+    what a scene's grasps did to the other objects, per-category results, failures, the requests it cannot hold
+    and the threshold curve."""
     methods = summary["methods"]
     lines = _interval_tables(summary, seeds) if any("intervals" in m for m in methods.values()) else []
-    lines += _table_one(methods) + [""] + _table_two(methods) + _neighbours(methods) + _table_three(methods)
+    lines += _table_one(methods) + [""] + _table_two(methods) + _target_table(methods) + _neighbours(methods)
+    lines += _table_three(methods)
     lines += _curve_table(summary.get("curve") or {}) + _per_category(methods) + _failures(methods)
     return lines + _infeasible(methods)
 

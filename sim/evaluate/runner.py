@@ -212,7 +212,8 @@ def subject_of(object_id: str, config: RunConfig, cell: Cell,
     model = model or load_asset(object_id)
     context = EpisodeContext.from_object(model, scene_seed, prompts=config.prompts or None)
     true_pose = cell.true_pose if config.backend == "real" else lambda: cell.object_mesh()[1]  # emulated: placed
-    return context, GroundTruth.of_object(model, context.prompts, true_pose=true_pose)
+    scene = cell.scene_truth if config.scene is not None else None
+    return context, GroundTruth.of_object(model, context.prompts, true_pose=true_pose, scene=scene)
 
 
 def run_object(
@@ -236,7 +237,8 @@ def run_object(
     sink = sink or Sink(out)
     settings = EpisodeSettings(
         seed=config.seed, top_k=config.top_k, perceive=config.perceive,
-        workspace=workspace_of(cell) if config.perceive else None, decomposition_workers=1 if parallel else None,
+        workspace=workspace_of(cell) if config.perceive else None, among_others=config.scene is not None,
+        decomposition_workers=1 if parallel else None,
         decomposition_seed=config.decomposition_seed,
         decomposition_cache=str(decomposition_cache) if decomposition_cache is not None else None,
     )
