@@ -519,10 +519,10 @@ class Episode:
             prompt=context.prompts[slot.prompt_index], prompt_index=slot.prompt_index, rank=slot.rank,
             seed=self.settings.seed, scene_seed=context.scene_seed, n_candidates=slot.n_candidates, executed=False,
         )
-        o = self.observation
-        if o.search is not None:
+        o = self._observation  # None for a grasp given from outside (a gym action) before anything was observed
+        if o is not None and o.search is not None:
             record.target_found, record.target_iou = o.search.found, self.target_iou
-        if not o.found:
+        if o is not None and not o.found:
             record.contacts_on_part = False if self.truth is not None else None
             record.success = False if self.truth is not None else None
             record.message = f"the detector found the {object_name(context.category)} in none of the " \
