@@ -181,7 +181,7 @@ class SimCell:
             self.scene_plan = plan_scene(self.objects, target_id=model.object_id, n_objects=self.objects_per_scene,
                                          kind=self.scene, seed=self._scene_seed)
             bodies = place_scene(self.world, self._by_id, self.scene_plan, settle_time=SCENE_SETTLE_TIME,
-                                 parked=[self.robot.body])
+                                 parked=self.robot.body)
             self.object_body = bodies[0]
             self.neighbours = list(zip(bodies[1:], self.scene_plan.object_ids[1:]))
         self._camera_noise_rng = np.random.default_rng([self._scene_seed, 1])

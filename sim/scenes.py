@@ -99,15 +99,16 @@ def plan_scene(objects: Sequence[ObjectModel], *, target_id: str, n_objects: int
 
 def place_scene(
     world: World, objects_by_id: Mapping[str, ObjectModel], plan: ScenePlan, *, settle_time: float,
-    parked: Sequence[int] = (),
+    parked: int | None = None,
 ) -> list[int]:
     """Load the plan's objects at their drop poses and step until all rest or `settle_time` (s) runs out; the bodies,
     target first. The target is loaded last so that its solver settings (`World.load_object`) are the ones in force.
 
-    `parked` bodies (the robot at home) are out of the objects' way while they settle, as a lab lays a scene out
-    with the arm parked: a dropped hammer would otherwise come to rest leaning on the gripper (in 1 of 36
-    four-object UR5 piles, 3 of 36 with the floating gripper) and fall when it moves. ValueError when a settled
-    object still reaches into a parked body."""
+    The links of the `parked` body (the robot at home) that reach over the workspace (`overhanging_links`) are out
+    of the objects' way while they settle, as a lab lays a scene out with the arm parked: a dropped hammer would
+    otherwise come to rest leaning on the gripper (in 1 of 36 four-object UR5 piles, 3 of 36 with the floating
+    gripper) and fall when it moves. The rest of the robot stays solid: a bottle that rolls off the pile stops
+    against the arm's base. ValueError when a settled object still reaches into an overhanging link."""
     missing = [i for i in plan.object_ids if i not in objects_by_id]
     if missing:
         raise ValueError(f"the plan's objects {missing} are not in objects_by_id")
@@ -116,7 +117,8 @@ def place_scene(
     bodies = [loaded[i] for i in range(len(plan.object_ids))]
     for body in bodies:
         world.client.changeDynamics(body, -1, linearDamping=SETTLE_DAMPING[0], angularDamping=SETTLE_DAMPING[1])
-    _collide(world, bodies, parked, False)
+    overhanging = overhanging_links(world, parked) if parked is not None else []
+    _collide(world, bodies, parked, overhanging, False)
     dt = world.physics.time_step
     quiet, needed = 0, round(QUIET_TIME / dt)
     for _ in range(round(settle_time / dt)):
@@ -128,20 +130,31 @@ def place_scene(
             break
     for body in bodies:
         world.client.changeDynamics(body, -1, linearDamping=PYBULLET_DAMPING, angularDamping=PYBULLET_DAMPING)
-    _collide(world, bodies, parked, True)
+    _collide(world, bodies, parked, overhanging, True)
     for index, body in enumerate(bodies):
-        if any(world.client.getClosestPoints(body, other, distance=0.0) for other in parked):
+        if any(world.client.getClosestPoints(body, parked, 0.0, -1, link) for link in overhanging):
             raise ValueError(f"the settled {plan.kind} scene of seed {plan.seed} (target {plan.target_id}) reaches "
-                             f"into the parked robot: {plan.object_ids[index]} touches it")
+                             f"into the parked robot: {plan.object_ids[index]} touches its gripper or wrist")
     return bodies
 
 
-def _collide(world: World, bodies: Sequence[int], parked: Sequence[int], enable: bool) -> None:
-    """Switch collisions between every object body and every link of each parked body on or off."""
-    for other in parked:
-        for link in range(-1, world.client.getNumJoints(other)):
-            for body in bodies:
-                world.client.setCollisionFilterPair(body, other, -1, link, int(enable))
+def overhanging_links(world: World, body: int) -> list[int]:
+    """The links of `body` (-1 its base) whose bounding box reaches over the workspace square (`PACK_HALF_SIZE`
+    around `WORKSPACE_CENTER`): for a robot at home, its wrist and gripper."""
+    low, high = WORKSPACE_CENTER - PACK_HALF_SIZE, WORKSPACE_CENTER + PACK_HALF_SIZE
+    links = []
+    for link in range(-1, world.client.getNumJoints(body)):
+        lower, upper = (np.asarray(corner)[:2] for corner in world.client.getAABB(body, link))
+        if np.all(lower <= high) and np.all(upper >= low):
+            links.append(link)
+    return links
+
+
+def _collide(world: World, bodies: Sequence[int], parked: int | None, links: Sequence[int], enable: bool) -> None:
+    """Switch collisions between every object body and the `links` of the `parked` body on or off."""
+    for link in links:
+        for body in bodies:
+            world.client.setCollisionFilterPair(body, parked, -1, link, int(enable))
 
 
 def penetrations(world: World, bodies: Sequence[int]) -> float:

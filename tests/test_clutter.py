@@ -130,8 +130,9 @@ def test_bad_scene_arguments_get_one_sentence(argv, message, capsys, tmp_path):
 
 
 def test_a_pile_settles_clear_of_the_parked_robot():
-    """Without the robot parked out of the way, this pile's ball-peen hammer came to rest leaning on the 2F-85's
-    knuckle at home, 25 cm above the table."""
+    """Without the robot's wrist and gripper out of the way, this pile's ball-peen hammer came to rest leaning on
+    the 2F-85's knuckle at home, 25 cm above the table; with the whole robot out of the way, a jar rolled 4 cm into
+    the arm's base."""
     cell = SimCell(objects=load_asset_set(), scene="pile", objects_per_scene=4, seed=1)
     try:
         cell.reset(seed=1, object_id="mug_classic")
@@ -139,6 +140,10 @@ def test_a_pile_settles_clear_of_the_parked_robot():
         bodies = [cell.object_body] + [body for body, _ in cell.neighbours]
         assert not any(cell.world.client.getClosestPoints(body, cell.robot.body, distance=0.0) for body in bodies)
         assert max(cell.world.client.getAABB(body)[1][2] for body in bodies) < 0.2  # nothing props a body up
+        cell.reset(seed=4, object_id="hammer_claw")  # its jar rolls off the pile to the arm's base and stops there
+        jar = dict((name, body) for body, name in cell.neighbours)["bottle_jar"]
+        assert cell.world.client.getClosestPoints(jar, cell.robot.body, 0.001)  # against the base, not inside it
+        assert min(p[8] for p in cell.world.client.getClosestPoints(jar, cell.robot.body, 0.001)) > -0.005
         cell.robot.reset_home(cell.hand.stroke)
         for _ in range(240):
             cell.world.step()
