@@ -72,17 +72,9 @@ def measure(cell: SimCell, kind: str, seed: int, target_id: str, preset: str) ->
                  chosen, search.found and search.index == int(np.argmax(ious[truth.target])))
 
 
-def report(scenes: list[Scene], command: str, seconds: float, preset: str, n_objects: int) -> list[str]:
-    """The Markdown report: one row per scene kind, then the scenes whose target was not separated or not found."""
+def kind_table(scenes: list[Scene]) -> list[str]:
+    """The Markdown table of one row per scene kind."""
     lines = [
-        "# Finding the object among others: instance splitting and the target's choice", "",
-        f"`{command}`", "",
-        f"Written {datetime.now(UTC):%Y-%m-%d %H:%M} UTC at commit {commit()}; {seconds / 60:.1f} min.", "",
-        (f"Scenes of {n_objects} objects laid out by the twin as `sim.evaluate --scene` does, captured by its two "
-         "virtual D435s and split by `seggrasp.perception.split_instances`; each object matched to its best "
-         f"instance by the twin's masks (separated: IoU >= {SEPARATED}); the target picked by "
-         f"`seggrasp.target.find_target` with the simulated object detector, preset `{preset}` (bench/"
-         "bench_instances.py)."), "",
         "| scene | scenes | instances / objects | objects separated | target's best IoU | target found | chosen "
         "IoU (found) | right instance |",
         "|---|---|---|---|---|---|---|---|",
@@ -96,6 +88,23 @@ def report(scenes: list[Scene], command: str, seconds: float, preset: str, n_obj
             f"{np.mean([s.n_objects for s in group]):.2f} | {np.mean([v >= SEPARATED for v in objects]):.3f} | "
             f"{np.mean([s.target_best for s in group]):.3f} | {np.mean([s.found for s in group]):.3f} | "
             f"{np.mean(chosen) if chosen else float('nan'):.3f} | {np.mean([s.right_instance for s in group]):.3f} |")
+    return lines
+
+
+def report(scenes: list[Scene], command: str, seconds: float, preset: str, n_objects: int) -> list[str]:
+    """The Markdown report: the table per scene kind, then the scenes whose target was not separated or not
+    found."""
+    lines = [
+        "# Finding the object among others: instance splitting and the target's choice", "",
+        f"`{command}`", "",
+        f"Written {datetime.now(UTC):%Y-%m-%d %H:%M} UTC at commit {commit()}; {seconds / 60:.1f} min.", "",
+        (f"Scenes of {n_objects} objects laid out by the twin as `sim.evaluate --scene` does, captured by its two "
+         "virtual D435s and split by `seggrasp.perception.split_instances`; each object matched to its best "
+         f"instance by the twin's masks (separated: IoU >= {SEPARATED}); the target picked by "
+         f"`seggrasp.target.find_target` with the simulated object detector, preset `{preset}` (bench/"
+         "bench_instances.py)."), "",
+        *kind_table(scenes),
+    ]
     missed = [s for s in scenes if s.target_best < SEPARATED or not s.right_instance]
     lines += ["", f"## Scenes whose target was not separated or not picked ({len(missed)})", "",
               "| scene | seed | target | instances | best IoU per object | found | chosen IoU |", "|---|---|---|---|---|---|---|"]
@@ -123,7 +132,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {error}", file=sys.stderr)
         return 2
     objects = load_asset_set()
-    targets = list({o.category: o.object_id for o in reversed(objects)}.values())[::-1]  # first of each category
+    first_of: dict[str, str] = {}
+    for model in objects:
+        first_of.setdefault(model.category, model.object_id)
+    targets = list(first_of.values())
     start, scenes = time.monotonic(), []
     for kind in kinds:
         cell = SimCell(objects=objects, scene=kind, objects_per_scene=args.objects_per_scene, seed=seeds[0])
@@ -136,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python bench/bench_instances.py " + " ".join(argv if argv is not None else sys.argv[1:])
     lines = report(scenes, command.strip(), time.monotonic() - start, args.detector, args.objects_per_scene)
     atomic_write_text(args.out, "\n".join(lines) + "\n")
-    print("\n".join(lines[8:8 + 2 + len(kinds)]))
+    print("\n".join(kind_table(scenes)))
     return 0
 
 

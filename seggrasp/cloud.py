@@ -26,6 +26,23 @@ def backproject(frame: Frame, max_depth: float = np.inf) -> np.ndarray:
     return transform_points(camera_points, T_world_cam)
 
 
+def project(
+    points: np.ndarray, T_cam_world: np.ndarray, K: np.ndarray, shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels of world points (N, 3) in a pinhole camera of image `shape` (H, W), `backproject`'s inverse:
+    (column, row, depth along the optical axis, inside); the pixel is rounded and valid where `inside` (in front of
+    the camera and in the image)."""
+    local = transform_points(points, T_cam_world)
+    z = local[:, 2]
+    in_front = z > 1e-6
+    u = np.full(len(z), -1, dtype=np.int64)
+    v = np.full(len(z), -1, dtype=np.int64)
+    u[in_front] = np.round(K[0, 0] * local[in_front, 0] / z[in_front] + K[0, 2]).astype(np.int64)
+    v[in_front] = np.round(K[1, 1] * local[in_front, 1] / z[in_front] + K[1, 2]).astype(np.int64)
+    inside = in_front & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    return u, v, z, inside
+
+
 def transform_points(points: np.ndarray, T: np.ndarray) -> np.ndarray:
     """Apply a 4x4 transform to (N, 3) points."""
     return points @ T[:3, :3].T + T[:3, 3]

@@ -304,7 +304,9 @@ class Episode:
         self.vote_cache = vote_cache
         self.outcome_cache = outcome_cache
         self._observation: Observation | None = None
-        self._target_iou: float | None = None
+        #: the IoU of the instance chosen as the target against the twin's truth (`seggrasp.target.instance_iou`),
+        #: set on observing; None when nothing was searched, the target was not found or the scene has no truth
+        self.target_iou: float | None = None
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
@@ -322,6 +324,10 @@ class Episode:
                                             object_name(self.context.category))
             if self.truth is not None and o.found:
                 self._truth_on_mesh = self.truth.on_mesh(o.mesh, o.T_world_obj, o.perceived, self.context.object_id)
+                if o.search is not None and self.truth.scene is not None:
+                    from seggrasp.target import instance_iou
+
+                    self.target_iou = instance_iou(o.instances, o.search.index, self.truth.scene().target)
         return self._observation
 
     def _object_detector(self) -> Detector | None:
@@ -333,18 +339,6 @@ class Episode:
             raise ValueError("finding the object among others needs a detector; this episode was given none")
         scene = self.truth.scene() if self.truth is not None and self.truth.scene is not None else None
         return self.detector.for_scene(scene)
-
-    @property
-    def target_iou(self) -> float | None:
-        """The IoU of the instance chosen as the target against the twin's truth (`seggrasp.target.instance_iou`);
-        None when nothing was searched, the target was not found or there is no truth of the scene."""
-        o = self.observation
-        if self._target_iou is None and o.found and o.search is not None and self.truth is not None \
-                and self.truth.scene is not None:
-            from seggrasp.target import instance_iou
-
-            self._target_iou = instance_iou(o.instances, o.search.index, self.truth.scene().target)
-        return self._target_iou
 
     @property
     def truth_on_mesh(self) -> np.ndarray | None:

@@ -375,10 +375,19 @@ def supported_clusters(points: np.ndarray, height: np.ndarray, config: Perceptio
     point is more than `support_gap` above the table are not the object (a gripper above it); of the others the
     largest is kept, with any at least `cluster_keep_fraction` of its size.
     """
-    clusters = _table_clusters(points, height, config)
-    if clusters is None:
+    if len(points) == 0:
+        return np.zeros(0, dtype=bool)
+    fine = radius_components(points, config.cluster_radius)
+    keep = np.bincount(fine)[fine] >= config.min_cluster_points
+    if not keep.any():
+        return keep
+    coarse = radius_components(points[keep], config.cluster_link)
+    sizes = np.bincount(coarse)
+    lowest = np.full(len(sizes), np.inf)
+    np.minimum.at(lowest, coarse, height[keep])
+    supported = lowest <= config.support_gap
+    if not supported.any():
         return np.zeros(len(points), dtype=bool)
-    keep, coarse, sizes, supported = clusters
     chosen = supported & (sizes >= config.cluster_keep_fraction * sizes[supported].max())
     keep[keep] = chosen[coarse]
     return keep
@@ -422,27 +431,6 @@ def instance_labels(points: np.ndarray, height: np.ndarray, config: PerceptionCo
     rank = np.empty(len(resting), dtype=np.int64)
     rank[np.argsort(-counts, kind="stable")] = np.arange(len(resting))
     return np.where(labels >= 0, rank[np.maximum(labels, 0)], -1)
-
-
-def _table_clusters(
-    points: np.ndarray, height: np.ndarray, config: PerceptionConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-    """(mask of the points that are not specks, coarse cluster per such point, cluster sizes, whether each cluster
-    rests on the table), or None when no cluster rests on the table (see `supported_clusters`)."""
-    if len(points) == 0:
-        return None
-    fine = radius_components(points, config.cluster_radius)
-    keep = np.bincount(fine)[fine] >= config.min_cluster_points
-    if not keep.any():
-        return None
-    coarse = radius_components(points[keep], config.cluster_link)
-    sizes = np.bincount(coarse)
-    lowest = np.full(len(sizes), np.inf)
-    np.minimum.at(lowest, coarse, height[keep])
-    supported = lowest <= config.support_gap
-    if not supported.any():
-        return None
-    return keep, coarse, sizes, supported
 
 
 def fit_table_plane(

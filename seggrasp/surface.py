@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from seggrasp.cell import Frame
-from seggrasp.cloud import checked_pose, transform_points
+from seggrasp.cloud import checked_pose, project, transform_points
 
 
 def implicit_surface(
@@ -125,14 +125,7 @@ def seen_free_space(
     def free(positions: np.ndarray) -> np.ndarray:
         seen = np.zeros(len(positions), dtype=bool)
         for depth, sees_table, K, T_cam_world in cameras:
-            local = transform_points(positions, T_cam_world)
-            z = local[:, 2]
-            in_front = z > 1e-6
-            u = np.full(len(z), -1, dtype=np.int64)
-            v = np.full(len(z), -1, dtype=np.int64)
-            u[in_front] = np.round(K[0, 0] * local[in_front, 0] / z[in_front] + K[0, 2]).astype(np.int64)
-            v[in_front] = np.round(K[1, 1] * local[in_front, 1] / z[in_front] + K[1, 2]).astype(np.int64)
-            inside = in_front & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+            u, v, z, inside = project(positions, T_cam_world, K, depth.shape)
             measured = np.zeros(len(z))
             table = np.zeros(len(z), dtype=bool)
             measured[inside] = depth[v[inside], u[inside]]

@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Sequence
 import numpy as np
 
 from seggrasp.cell import Frame
-from seggrasp.cloud import transform_points
+from seggrasp.cloud import project
 from seggrasp.detect.base import Detector, box_iou
 from seggrasp.views import View
 
@@ -68,14 +68,9 @@ def visible_pixels(
     `depth_tolerance`."""
     if not depth_tolerance > 0:
         raise ValueError(f"depth_tolerance must be positive, got {depth_tolerance}")
-    in_camera = transform_points(np.asarray(points, dtype=float).reshape(-1, 3), np.linalg.inv(frame.T_world_cam))
-    z = in_camera[:, 2]
-    safe_z = np.where(z > 0, z, 1.0)
+    points = np.asarray(points, dtype=float).reshape(-1, 3)
     K = np.asarray(frame.K, dtype=float)
-    u = np.rint(K[0, 0] * in_camera[:, 0] / safe_z + K[0, 2]).astype(np.int64)
-    v = np.rint(K[1, 1] * in_camera[:, 1] / safe_z + K[1, 2]).astype(np.int64)
-    height, width = frame.depth.shape
-    visible = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    u, v, z, visible = project(points, np.linalg.inv(frame.T_world_cam), K, frame.depth.shape)
     measured = np.zeros(len(z))
     measured[visible] = frame.depth[v[visible], u[visible]]
     visible &= (measured <= 0) | (z <= measured + depth_tolerance)

@@ -165,7 +165,7 @@ class SimulatedDetector:
                     prompt_index.append(prompt)
             elif part_pixels[part] > 0:
                 ease = min(1.0, part_pixels[part] / n_object / FULL_PROMINENCE)
-                if rng.random() >= preset.miss_rate + preset.small_part_miss * (1.0 - ease):
+                if not _missed(preset, ease, rng):
                     others = visible_parts[visible_parts != part]
                     if rng.random() < preset.whole_object_rate:
                         box = object_box
@@ -174,10 +174,7 @@ class SimulatedDetector:
                     else:
                         box = _tight_box(pixel_part == part)
                     boxes.append(_jitter(box, rng, preset, width, height))
-                    confidence = preset.peak_confidence * (
-                        preset.confidence_floor + (1.0 - preset.confidence_floor) * ease
-                    ) + rng.normal(0.0, preset.confidence_noise)
-                    scores.append(float(np.clip(confidence, MIN_CONFIDENCE, 1.0)))
+                    scores.append(_confidence(preset, ease, rng))
                     prompt_index.append(prompt)
             for _ in range(rng.poisson(preset.false_boxes)):
                 boxes.append(_false_box(object_box, rng, width, height))
@@ -224,13 +221,10 @@ class SimulatedObjectDetector:
                 if count == 0:
                     continue
                 ease = min(1.0, count / total / FULL_PROMINENCE)
-                if rng.random() < preset.miss_rate + preset.small_part_miss * (1.0 - ease):
+                if _missed(preset, ease, rng):
                     continue
                 boxes.append(_jitter(_tight_box(pixels == body), rng, preset, width, height))
-                confidence = preset.peak_confidence * (
-                    preset.confidence_floor + (1.0 - preset.confidence_floor) * ease
-                ) + rng.normal(0.0, preset.confidence_noise)
-                scores.append(float(np.clip(confidence, MIN_CONFIDENCE, 1.0)))
+                scores.append(_confidence(preset, ease, rng))
                 prompt_index.append(prompt)
             others = bodies[(counts > 0) & ~np.isin(bodies, targets)]
             for _ in range(rng.poisson(preset.false_boxes) if len(others) else 0):
@@ -240,6 +234,18 @@ class SimulatedObjectDetector:
         if not boxes:
             return Detections.empty()
         return Detections(np.array(boxes), np.array(scores), np.array(prompt_index))
+
+
+def _missed(preset: SimulatedDetectorPreset, ease: float, rng: np.random.Generator) -> bool:
+    """Whether a box of prominence `ease` (0-1) is missed: with probability miss_rate + small_part_miss (1 - ease)."""
+    return bool(rng.random() < preset.miss_rate + preset.small_part_miss * (1.0 - ease))
+
+
+def _confidence(preset: SimulatedDetectorPreset, ease: float, rng: np.random.Generator) -> float:
+    """A found box's confidence: from confidence_floor to peak_confidence with its prominence `ease`, plus noise,
+    clipped to [MIN_CONFIDENCE, 1]."""
+    confidence = preset.peak_confidence * (preset.confidence_floor + (1.0 - preset.confidence_floor) * ease)
+    return float(np.clip(confidence + rng.normal(0.0, preset.confidence_noise), MIN_CONFIDENCE, 1.0))
 
 
 def _jitter(
