@@ -105,9 +105,9 @@ class Request:
         return reason_kind(self.reason) if not self.feasible else ""
 
     def strict_limits_broken(self, hand: Hand, footprint_share: float) -> list[str]:
-        """Which of the strict judgement's limits the executed grasp breaks (module doc; `AntipodalConfig()`'s
-        margins, the footprint's `footprint_share`): a guide to which relaxation made it."""
-        strict, broken = AntipodalConfig(), []
+        """Which of the strict judgement's limits the executed grasp breaks (module doc; the margins of `hand`'s
+        sampler, the footprint's `footprint_share`): a guide to which relaxation made it."""
+        strict, broken = AntipodalConfig.for_hand(hand), []
         if self.share is not None and self.share < footprint_share:
             broken.append(f"pads' share {100 * self.share:.0f} % < {100 * footprint_share:.0f} %")
         if self.width is not None and self.width > hand.stroke - strict.width_margin:
@@ -316,6 +316,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     """The Markdown report of the requests (module doc; `clearance`: the relaxed sampler's, `relaxed_config`)."""
     config = relaxed_config(ROBOTIQ_2F85, ROBOTIQ_2F85.default_grip_force, clearance)
     strict = AntipodalConfig()
+    hands = _hands()
+    pinches = ", ".join(f"{1000 * hands[robot].pinch_table_clearance:.1f} mm for the {robot}" for robot in robots)
     lines = [
         "# Requests judged infeasible, executed anyway", "",
         f"`{command}`", "",
@@ -330,7 +332,7 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
         f"{1000 * config.pinch_min_band:.1f} mm of pad on the part (strict {1000 * strict.pinch_min_band:.1f} mm); "
         f"the contact distance may come within {1000 * config.width_margin:.0f} mm of the stroke (strict "
         f"{1000 * strict.width_margin:.0f} mm); fingertips of a pinch {1000 * config.pinch_table_clearance:.1f} mm "
-        f"above the table (strict {1000 * strict.pinch_table_clearance:.1f} mm) and the hand of an ordinary grasp "
+        f"above the table (strict: the hand's, {pinches}) and the hand of an ordinary grasp "
         f"{1000 * config.table_clearance:.1f} mm (strict {1000 * strict.table_clearance:.1f} mm)"
         + (", the least the cell allows (`sim.grasp_primitive.GraspSettings`)" if clearance == "cell" else "")
         + "; a sweep's pads may meet surface "

@@ -51,7 +51,9 @@ class Hand:
       `centre_boxes` are fixed and centred on the z axis: (half x, half y, z min, z max);
     - `pre_grasp_margin`: extra opening on each side of the contacts while approaching;
     - `contact_depths`: where along the pads (m from their centre, + towards the fingertips) the sampler tries the
-      contacts, deepest first; `pinch_contact_depths`: those of a fingertip pinch of a part lying flat;
+      contacts, deepest first; `pinch_contact_depths`: those of a fingertip pinch of a part lying flat, and
+      `pinch_table_clearance` how far above the table the fingertips stay in one (the cell must allow them that
+      close: sim.grasp_primitive.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance);
     - `grip_force_range` (N) and `default_grip_force`; `continuous_grip_force` where the hand distinguishes a
       force it holds indefinitely from its maximum;
     - `finger_speed_range` (m/s) and `closing_speed`, the twin's closing speed of each pad (m/s).
@@ -68,6 +70,7 @@ class Hand:
     pre_grasp_margin: float
     contact_depths: tuple[float, ...]
     pinch_contact_depths: tuple[float, ...]
+    pinch_table_clearance: float
     grip_force_range: tuple[float, float]
     default_grip_force: float
     finger_speed_range: tuple[float, float]
@@ -83,6 +86,8 @@ class Hand:
             raise ValueError(f"{self.name}: contact depths must lie on the pad (|d| < {self.pad_half_length})")
         if min(self.stroke, self.pad_half_width, self.pad_half_length) <= 0:
             raise ValueError(f"{self.name}: stroke and pad size must be positive")
+        if self.pinch_table_clearance < 0:
+            raise ValueError(f"{self.name}: pinch_table_clearance must not be negative")
 
     @property
     def torsion_radius(self) -> float:
@@ -128,6 +133,9 @@ ROBOTIQ_2F85 = Hand(
     contact_depths=(-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012),
     # 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top)
     pinch_contact_depths=(0.015, 0.0165),
+    # 0.5 mm above the least the cell allows: its pinches from 1.0 mm lifted none of the parts this judges too low
+    # (docs/results/infeasible-requests.md)
+    pinch_table_clearance=0.0015,
     grip_force_range=(20.0, 235.0),
     # its full force: pans, kettles and hammers held by their handles turn in the fingers under their own weight
     # at 100 N (docs/results/archive/twin-physics-rounds.md, fifth round)
@@ -156,6 +164,10 @@ FRANKA_HAND = Hand(
     # 3 mm steps within the 17.6 mm pad, 2.8 mm clear of either end
     contact_depths=(-0.006, -0.003, 0.0, 0.003, 0.006),
     pinch_contact_depths=(0.0065,),
+    # the least the cell allows: its pinch contact sits 2.4 mm from the fingertip (the 2F-85's 3.5-5 mm), and from
+    # 1.5 mm (as the 2F-85 pinches) or 1.2 mm the judgement refused scissor blades and eyeglass rims that its
+    # pinches from 1.1 mm lift (docs/results/infeasible-requests.md)
+    pinch_table_clearance=0.001,
     grip_force_range=(20.0, 140.0),
     default_grip_force=70.0,
     continuous_grip_force=70.0,

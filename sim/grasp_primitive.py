@@ -53,7 +53,7 @@ class GraspSettings:
     max_rotation_deg: float = MAX_ROTATION_DEG  # and the object turn this much
     table_clearance: float = 0.003
     # the fingertips (inner fingers and pads) may come this close: a fingertip pinch of a part lying flat
-    # (seggrasp.grasp.antipodal.AntipodalConfig.pinch_table_clearance) puts them 1.5 mm above the table
+    # (seggrasp.hands.Hand.pinch_table_clearance) puts them 1.0-1.5 mm above the table
     fingertip_table_clearance: float = 0.001
     settle_time: float = 1.0  # at most; settling stops once the object rests
 

@@ -52,8 +52,10 @@ def test_the_relaxed_sampler_loosens_the_judgement_s_margins_down_to_the_cell_s_
 
 def test_the_strict_limits_a_lifted_grasp_breaks_are_named() -> None:
     low = infeasible("blade", share=1.0, band=0.0003, tip_clearance=0.0011, width=0.0504, tilt_deg=0.0)
-    assert low.strict_limits_broken(FRANKA_HAND, 0.5) == ["fingertips 1.1 mm < 1.5 mm above the table",
-                                                          "pad band 0.3 mm < 0.5 mm"]
+    assert low.strict_limits_broken(ROBOTIQ_2F85, 0.5) == ["fingertips 1.1 mm < 1.5 mm above the table",
+                                                           "pad band 0.3 mm < 0.5 mm"]
+    # the Franka hand pinches from 1.0 mm (its own pinch_table_clearance)
+    assert low.strict_limits_broken(FRANKA_HAND, 0.5) == ["pad band 0.3 mm < 0.5 mm"]
     high = infeasible("temple", share=0.0, band=0.0009, tip_clearance=0.01, width=0.078, tilt_deg=30.0)
     # an ordinary grasp high above the table: the pinch's limits do not hold for it
     assert high.strict_limits_broken(FRANKA_HAND, 0.5) == ["pads' share 0 % < 50 %", "width 78.0 mm > 75 mm"]

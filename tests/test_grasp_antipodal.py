@@ -6,6 +6,7 @@ import trimesh
 
 from seggrasp.grasp import ROBOTIQ_2F85, AntipodalConfig, AntipodalSampler, GraspSet
 from seggrasp.grasp.antipodal import gravity_torque
+from seggrasp.hands import FRANKA_HAND
 
 MU = 0.5
 TABLE = np.array([0.0, 0.0, 1.0, 0.0])  # object frame: table top at z = 0, normal up
@@ -190,6 +191,19 @@ def test_a_low_part_lying_flat_is_pinched_with_the_fingertips() -> None:
     assert fingertips.min() >= config.pinch_table_clearance - 1e-6
     assert _along_pad(g).max() <= 0.01875 - 0.00225 + 1e-6  # the contact at least 2.25 mm from the pad's end
     assert np.all(np.abs(g.widths - 0.015) < 0.0015)  # across the bar, not along it
+
+
+def test_each_hand_pinches_from_its_own_height_above_the_table() -> None:
+    # a 3.7 mm bar lying flat: the Franka hand's pinches bring its fingertips down to its 1.0 mm, the 2F-85's to 1.5
+    bar = _on_table(trimesh.creation.box((0.12, 0.015, 0.0037)))
+    lowest = {}
+    for hand in (FRANKA_HAND, ROBOTIQ_2F85):
+        g = AntipodalSampler(AntipodalConfig.for_hand(hand, friction_coefficient=MU), hand).generate(
+            bar, seed=0, table_plane=TABLE)
+        assert len(g) > 0
+        lowest[hand.name] = (g.poses[:, 2, 3] + hand.tip_beyond_origin * g.poses[:, 2, 2]).min()
+    assert FRANKA_HAND.pinch_table_clearance - 1e-6 <= lowest["franka_hand"] < 0.0012
+    assert lowest["robotiq_2f85"] >= ROBOTIQ_2F85.pinch_table_clearance - 1e-6
 
 
 def test_a_pinch_needs_the_pads_on_the_part_over_the_band() -> None:

@@ -74,10 +74,9 @@ class AntipodalConfig:
     contact_depths: tuple[float, ...] = ROBOTIQ_2F85.contact_depths
     # fingertip pinch of a low part lying on the table, for straight-down poses that have no depth above: the
     # contact near the pad's end (`Hand.pinch_contact_depths`: the pad still touches the part's side from there to
-    # its top) and the fingertips this far above the table; the cell must allow its fingertips that close
-    # (sim.grasp_primitive.GraspSettings.fingertip_table_clearance, the real cell's limits.min_table_clearance)
+    # its top) and the fingertips this far above the table (`Hand.pinch_table_clearance`)
     pinch_contact_depths: tuple[float, ...] = ROBOTIQ_2F85.pinch_contact_depths
-    pinch_table_clearance: float = 0.0015
+    pinch_table_clearance: float = ROBOTIQ_2F85.pinch_table_clearance
     pinch_max_tilt_deg: float = 10.0
     # and the pads must touch the part's side over at least this much of their length (a pinch that only grazes
     # an edge does not hold), measured from the surface points within `pinch_band_tolerance` of each pad's first
@@ -129,11 +128,12 @@ class AntipodalConfig:
 
     @classmethod
     def for_hand(cls, hand: Hand, **settings) -> "AntipodalConfig":
-        """The sampler's parameters for `hand`: its pads, contact depths, default grip force and torsion radius;
-        `settings` override any field (e.g. `grip_force`)."""
+        """The sampler's parameters for `hand`: its pads, contact depths, pinch clearance, default grip force and
+        torsion radius; `settings` override any field (e.g. `grip_force`)."""
         return cls(**{
             "pad_half_width": hand.pad_half_width, "pad_half_length": hand.pad_half_length,
             "contact_depths": hand.contact_depths, "pinch_contact_depths": hand.pinch_contact_depths,
+            "pinch_table_clearance": hand.pinch_table_clearance,
             "grip_force": hand.default_grip_force, "torsion_radius": hand.torsion_radius, **settings,
         })
 
