@@ -84,8 +84,9 @@ class Observation:
 
 @dataclass
 class EpisodeContext:
-    """What the harness says about the object: its name, category, the prompts and the scene seed, and, when it
-    knows them (the twin), the object's centre of mass (object frame) and mass for the grasp sampler."""
+    """What the harness says about the object: its id, category, the prompts and the scene seed, and, when it
+    knows them (the twin), the object's centre of mass (object frame) and mass for the grasp sampler. `name` is what
+    the detector is asked for to find it among others on the table (None: its category's, "frying pan")."""
 
     object_id: str
     category: str
@@ -93,6 +94,12 @@ class EpisodeContext:
     scene_seed: int
     center_of_mass: np.ndarray | None = None
     mass: float | None = None
+    name: str | None = None
+
+    @property
+    def object_name(self) -> str:
+        """What a prompt calls the object (`name`, else its category's name: `seggrasp.target.object_name`)."""
+        return self.name if self.name is not None else object_name(self.category)
 
     @classmethod
     def from_object(cls, model: ObjectModel, scene_seed: int, prompts: Sequence[str] | None = None) -> "EpisodeContext":
@@ -321,7 +328,7 @@ class Episode:
             self._reset_scene()
             s = self.settings
             self._observation = o = observe(self.cell, s.perceive, s.workspace, self._object_detector(),
-                                            object_name(self.context.category))
+                                            self.context.object_name)
             if self.truth is not None and o.found:
                 self._truth_on_mesh = self.truth.on_mesh(o.mesh, o.T_world_obj, o.perceived, self.context.object_id)
                 if o.search is not None and self.truth.scene is not None:
@@ -519,7 +526,7 @@ class Episode:
         if o is not None and not o.found:
             record.contacts_on_part = False if self.truth is not None else None
             record.success = False if self.truth is not None else None
-            record.message = f"the detector found the {object_name(context.category)} in none of the " \
+            record.message = f"the detector found the {context.object_name} in none of the " \
                              f"{len(o.instances)} objects on the table"
             record.failure = "not_found"
             return record

@@ -122,6 +122,9 @@ def test_evaluate_runs_a_packed_scene_and_reports_the_other_objects(tmp_path):
 @pytest.mark.parametrize("argv, message", [
     (["--objects-per-scene", "3"], "--objects-per-scene sets a scene's size: it needs --scene packed|pile"),
     (["--scene", "packed", "--objects-per-scene", "7"], "--objects-per-scene must be 2-6"),
+    (["--backend", "real", "--config", "hardware/cell.example.yaml", "--detector", "owlv2", "--weights", "w",
+      "--prompts", "handle", "--scene", "packed", "--objects-per-scene", "3"],
+     "--objects-per-scene lays out the twin's table; a real cell's holds what its operator put there"),
 ])
 def test_bad_scene_arguments_get_one_sentence(argv, message, capsys, tmp_path):
     assert main([*argv, "--objects", "mug_classic", "--out", str(tmp_path / "run")]) == 2

@@ -57,6 +57,30 @@ def test_the_evaluation_command_runs_through_the_wire_and_records_like_the_twin(
     assert (out / "summary.md").is_file() and json.loads((out / "summary.json").read_text())["run"]["backend"] == "real"
 
 
+def test_the_emulated_cell_lays_out_a_packed_table_and_the_run_finds_the_object_from_its_cameras(tmp_path):
+    """`--scene packed` on the emulated cell: the emulator lays the mug among three of the twin's other objects, the
+    unchanged RealCell captures them through pyrealsense2, and the run finds the mug among them by its name (the
+    simulated object detector boxes the bodies the emulator's masks name) before planning on its mesh alone."""
+    config, out = emulated_config(tmp_path), tmp_path / "run"
+    run = run_command([sys.executable, "-m", "sim.evaluate", "--backend", "real", "--config", str(config),
+                       "--scene", "packed", "--objects", "mug_classic", "--methods", "oracle", "--detector", "perfect",
+                       "--top-k", "1", "--out", str(out)], timeout=420)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "Traceback" not in run.stderr
+    trials = read_jsonl(out / "trials.jsonl")
+    assert sorted(t["prompt"] for t in trials) == ["body", "handle"]
+    for trial in trials:
+        scene = trial["extra"]["scene"]
+        assert scene["kind"] == "packed" and scene["target_id"] == "mug_classic" and len(scene["object_ids"]) == 4
+        assert trial["extra"]["backend"] == "real" and trial["target_found"]
+        assert trial["target_iou"] > 0.5  # the chosen instance against the emulator's masks of the mug
+        assert trial["success"] or trial["failure"] in FAILURES, trial["message"]
+    summary = (out / "summary.md").read_text()
+    assert "scene: packed, 4 objects" in summary and "Finding the object among the others" in summary
+    masks = sorted(p.name for p in (tmp_path / "recordings").glob("*.instances.npy"))
+    assert masks == ["941000000001.instances.npy", "941000000002.instances.npy"]
+
+
 SCENARIO = """
 import json, sys
 import numpy as np

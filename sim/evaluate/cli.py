@@ -98,11 +98,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                         + "); the grasp sampler's torsion limit follows it. A real cell grips with its cell.yaml's "
                         "gripper.force")
     parser.add_argument("--scene", choices=SCENE_KINDS, default=None,
-                        help="twin only: each object among other objects of the twin on the table, packed (upright, "
-                        "close) or pile (dropped onto each other); the grasp must not hit them and the trial records "
-                        "how far each moved; with --perceive the object is found among them from the cameras "
-                        "(split into instances, the one the detector boxes for its name; not found: every slot "
-                        "fails as not_found) (default: the object alone)")
+                        help="each object among other objects on the table, packed (upright, close) or pile (dropped "
+                        "onto each other): the twin and the emulated cell lay out the twin's others, a real cell's "
+                        "operator lays out the table (the kind is recorded); the twin's grasps must not hit them and "
+                        "its trials record how far each moved; with --perceive (always on a real cell) the object is "
+                        "found among them from the cameras (split into instances, the one the detector boxes for its "
+                        "name; not found: every slot fails as not_found) (default: the object alone)")
     parser.add_argument("--objects-per-scene", type=int, default=None, metavar="N",
                         help=f"--scene: objects on the table, the requested one included, {SCENE_SIZE[0]}-"
                         f"{SCENE_SIZE[1]} (default: {DEFAULT_OBJECTS_PER_SCENE})")
@@ -236,8 +237,10 @@ def _check_backend(args: argparse.Namespace) -> None:
         raise ValueError("--engine ray runs the twin; the real cell is one robot (drop --engine ray)")
     if args.grip_force is not None and args.backend == "real":
         raise ValueError("--grip-force sets the twin's gripper; the real cell grips with gripper.force in its cell.yaml")
-    if getattr(args, "scene", None) is not None and args.backend == "real":
-        raise ValueError("--scene lays out the twin's table; the real cell grasps what is on its table (drop --scene)")
+    if (getattr(args, "objects_per_scene", None) is not None and args.backend == "real"
+            and not emulated.declared(args.config)):
+        raise ValueError("--objects-per-scene lays out the twin's table; a real cell's holds what its operator put "
+                         "there (drop --objects-per-scene)")
 
 
 def check_grip_force(grip_force: float | None, robots: Sequence[str]) -> None:
@@ -307,6 +310,8 @@ def _objects_per_scene(args: argparse.Namespace) -> int | None:
         if args.objects_per_scene is not None:
             raise ValueError("--objects-per-scene sets a scene's size: it needs --scene packed|pile")
         return None
+    if args.backend == "real" and not emulated.declared(args.config):
+        return None  # what the operator put on the table
     return DEFAULT_OBJECTS_PER_SCENE if args.objects_per_scene is None else args.objects_per_scene
 
 

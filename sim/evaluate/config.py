@@ -62,7 +62,8 @@ class RunConfig:
     grip_force: float | None = None
     twin_gripper: str = TWIN_GRIPPER  # the twin's gripper model ("" on the real cell)
     robots: list[str] = field(default_factory=lambda: [DEFAULT_ROBOT])
-    # twin only: "packed" or "pile" puts each object among distractors (`sim.scenes`), objects_per_scene in all
+    # "packed" or "pile": each object among others (`sim.scenes`), objects_per_scene in all (twin and emulated cell;
+    # a real cell's operator lays out its table: None)
     scene: str | None = None
     objects_per_scene: int | None = None
 

@@ -9,7 +9,9 @@ emulates: the twin behind the real wire (ur_rtde, the Robotiq URCap socket, pyre
   object: `EmulatedCell.reset` moves the arm home as RealCell does, then asks the emulator to `place` the object,
   which builds the scene `SimCell.reset(seed, object)` builds and rewrites the cameras' recordings;
 - runs on twin objects and scores against their ground truth: the true pose is the one the emulator placed
-  (`EmulatedCell.true_pose`), so the simulated detector and the oracle run as on the twin backend;
+  (`EmulatedCell.true_pose`), so the simulated detector and the oracle run as on the twin backend; with `--scene`
+  the emulator lays the object among the twin's others and tells which body is which (`EmulatedCell.scene_truth`,
+  the frames' body masks), and the run finds the object from the cameras as a real cell's would;
 - records a protective stop during a grasp as a failed trial (`collision`, the stop named) after releasing it
   as an operator would (control channel `release`, then `URArm.reconnect` uploads the control script again);
   on the real cell the stop ends the object's task.
@@ -24,12 +26,14 @@ import socket
 import subprocess
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from seggrasp.cell import GraspOutcome
+from seggrasp.cell import Frame, GraspOutcome
+from seggrasp.truth import SceneTruth
 
 if TYPE_CHECKING:
     from hardware.cell import RealCell
@@ -117,28 +121,38 @@ def run_inside_emulator(config_path: str, objects: Sequence[str], argv: Sequence
 def real_cell(config: RunConfig):
     """The run's real cell: `EmulatedCell` when its config declares the emulator, else `hardware.RealCell`."""
     from hardware import RealCell  # lazy: the real cell's drivers are optional on a sim-only machine
+    from sim.evaluate.config import DEFAULT_OBJECTS_PER_SCENE
 
     if declared(config.config):
-        return EmulatedCell.from_config(config.config, dry_run=config.dry_run)
+        return EmulatedCell.from_config(config.config, dry_run=config.dry_run, scene=config.scene,
+                                        objects_per_scene=config.objects_per_scene or DEFAULT_OBJECTS_PER_SCENE)
     return RealCell.from_config(config.config, dry_run=config.dry_run)
 
 
 class EmulatedCell:
-    """`hardware.RealCell` on the emulated cell, with the emulator placing the object (module docstring)."""
+    """`hardware.RealCell` on the emulated cell, with the emulator placing the object (module docstring); with
+    `scene` ("packed" or "pile") among `objects_per_scene - 1` of the twin's other objects."""
 
     models_scene = False
 
-    def __init__(self, real: RealCell) -> None:
+    def __init__(self, real: RealCell, scene: str | None = None, objects_per_scene: int = 4) -> None:
+        from sim.lab.cameras import instance_mask_path
+
         self.real = real
         self.recordings = {camera.serial: camera.recording for camera in real.config.cameras}
+        self._masks = {camera.name: instance_mask_path(camera.recording.parent, camera.serial)
+                       for camera in real.config.cameras}
         recordings_folder(real.config)  # the cameras play what the emulator writes
+        self.scene, self.objects_per_scene = scene, objects_per_scene
         self._true_pose: np.ndarray | None = None
+        self._placed: dict = {}
 
     @classmethod
-    def from_config(cls, path: str | Path, dry_run: bool = False) -> EmulatedCell:
+    def from_config(cls, path: str | Path, dry_run: bool = False, scene: str | None = None,
+                    objects_per_scene: int = 4) -> EmulatedCell:
         from hardware import RealCell
 
-        return cls(RealCell.from_config(path, dry_run=dry_run))
+        return cls(RealCell.from_config(path, dry_run=dry_run), scene, objects_per_scene)
 
     @property
     def workspace(self):
@@ -159,13 +173,30 @@ class EmulatedCell:
         if object_id is None:
             raise ValueError("the emulated cell places a twin object: name it (reset(seed, object_id))")
         self.real.reset(seed, object_id)
-        reply = request("place", timeout=PLACE_TIMEOUT, object=object_id, seed=0 if seed is None else int(seed))
+        reply = request("place", timeout=PLACE_TIMEOUT, object=object_id, seed=0 if seed is None else int(seed),
+                        scene=self.scene, objects_per_scene=self.objects_per_scene)
         written = {serial: Path(path) for serial, path in reply["recordings"].items()}
         for serial, path in self.recordings.items():
             if written.get(serial) != path:
                 raise ValueError(f"camera {serial} plays {path}, but the emulator wrote {written.get(serial)} (its "
                                  f"cameras are {sorted(written)}): start it with --recordings {path.parent}")
         self._true_pose = np.asarray(reply["T_world_obj"], dtype=np.float64)
+        self._placed = reply
+
+    @property
+    def scene_plan(self):
+        """The `sim.scenes.ScenePlan` the emulator laid out last (None: the object alone)."""
+        from sim.scenes import ScenePlan
+
+        return ScenePlan.from_record(self._placed["scene"]) if "scene" in self._placed else None
+
+    def scene_truth(self) -> SceneTruth:
+        """Which of the emulator's bodies (the values of the frames' `instance_ids`) is which object, the requested
+        one the target."""
+        if "scene_truth" not in self._placed:
+            raise ValueError("the emulated cell has laid out no scene of several objects (reset() with a scene)")
+        truth = self._placed["scene_truth"]
+        return SceneTruth(int(truth["target"]), {int(body): name for body, name in truth["names"].items()})
 
     def true_pose(self) -> np.ndarray:
         """`T_world_obj` of the object as the emulator placed it (what the cameras saw) in the RTDE base frame."""
@@ -173,8 +204,25 @@ class EmulatedCell:
             raise ValueError("the emulated cell has placed nothing yet: call reset() first")
         return self._true_pose.copy()
 
-    def capture(self):
-        return self.real.capture()
+    def capture(self) -> list[Frame]:
+        """RealCell's frames; in a scene of several objects each carries the twin's body per pixel, which the
+        emulator wrote beside the camera's recording (`sim.lab.cameras.write_instance_masks`), for the simulated
+        object detector."""
+        frames = self.real.capture()
+        if self.scene is None:
+            return frames
+        masked = []
+        for frame in frames:
+            path = self._masks[frame.name]
+            try:
+                mask = np.load(path)
+            except OSError as exc:
+                raise ValueError(f"camera {frame.name}: the emulator's body mask {path} cannot be read: {exc}") from exc
+            if mask.shape != frame.depth.shape:
+                raise ValueError(f"camera {frame.name}: the emulator's body mask {path} is {mask.shape}, the frame "
+                                 f"{frame.depth.shape}")
+            masked.append(replace(frame, instance_ids=mask))
+        return masked
 
     def object_mesh(self):
         return self.real.object_mesh()

@@ -391,7 +391,9 @@ def _header_line(header: dict, seeds: Sequence[int]) -> str:
     robots = header.get("robots", [])
     return (f"Detector: `{header['detector']}` · embodiment: `{header['embodiment']}` · backend: `{header['backend']}`"
             + (f" · robots: {', '.join(robots)}" if robots else "")
-            + (f" · scene: {header['scene']}, {header['objects_per_scene']} objects" if header.get("scene") else "")
+            + (f" · scene: {header['scene']}" if header.get("scene") else "")
+            + (f", {header['objects_per_scene']} objects" if header.get("scene") and header.get("objects_per_scene")
+               else "")
             + f" · perceive: {header['perceive']} · seeds: {seeds_label(seeds)} · top-k: {header['top_k']}"
             f" · objects: {header['n_objects']} · wall time: {header['wall_time_s']:.0f} s"
             + (f" · trials recorded: {header['recorded_trials']} of {header['expected_trials']}"

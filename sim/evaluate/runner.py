@@ -26,6 +26,7 @@ from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, Slot, Tri
 from seggrasp.grasp.antipodal import AntipodalConfig, AntipodalSampler
 from seggrasp.method import PartPlan
 from seggrasp.objects import ObjectModel
+from seggrasp.target import object_name
 from seggrasp.metrics import part_ious, shape_miou
 from seggrasp.truth import DetectorSpec, GroundTruth
 from sim.evaluate.config import DEFAULT_OBJECTS_PER_SCENE, RunConfig, prompts_of, scene_seed_of
@@ -206,7 +207,8 @@ def subject_of(object_id: str, config: RunConfig, cell: Cell,
     the installed twin), its ground truth."""
     scene_seed = scene_seed_of(object_id, config.seed)
     if not twin_objects(config):
-        return EpisodeContext(object_id, "real", list(config.prompts), scene_seed), None
+        # the detector finds it among others by the name the run gives it ("--objects coffee_mug": "coffee mug")
+        return EpisodeContext(object_id, "real", list(config.prompts), scene_seed, name=object_name(object_id)), None
     from seggrasp.objects import load_asset
 
     model = model or load_asset(object_id)
@@ -517,5 +519,5 @@ def record_extra(record: TrialRecord, config: RunConfig, cell: Cell) -> None:
     hand (the robot system is the record's own `robot` field); in a scene run, the scene (`sim.scenes.ScenePlan`)."""
     record.extra = {"embodiment": config.embodiment, "backend": config.backend, "perceive": config.perceive,
                     "decomposition_seed": config.decomposition_seed, "hand": config.hand.name}
-    if config.scene is not None:
-        record.extra["scene"] = cell.scene_plan.to_record()
+    if config.scene is not None:  # a real cell's operator laid out the table: only its kind is known
+        record.extra["scene"] = cell.scene_plan.to_record() if twin_objects(config) else {"kind": config.scene}

@@ -4,7 +4,8 @@ After each placement the emulator calls `write_recordings({serial: frame}, folde
 camera, `folder/<serial>.db3`, replaced atomically, holding a D435 as pyrealsense2 records one (serial, a depth
 sensor with its depth units, a colour sensor, intrinsics and the depth-to-colour extrinsics) and `n_frames`
 identical frame sets of the still scene, uncompressed (about 31 MB per camera at 640x480). A client camera
-configured with `recording: <that path>` re-opens the file when it is replaced (hardware/realsense.py).
+configured with `recording: <that path>` re-opens the file when it is replaced (hardware/realsense.py). In a scene
+of several objects each camera's body-per-pixel mask goes beside its recording (`write_instance_masks`).
 pyrealsense2 2.59 records `.db3` only, and its software device is seen by no pipeline, so a recording is the way in
 (bridge audit, F8).
 
@@ -113,6 +114,32 @@ def write_recordings(frames: Mapping[str, Frame], folder: str | Path, *, fps: in
         try:
             _record(partial, serial, frame, fps, n_frames, imager)
             _check_frames(partial, n_frames)
+            os.replace(partial, path)
+        finally:
+            partial.unlink(missing_ok=True)
+        paths[serial] = path
+    return paths
+
+
+def instance_mask_path(folder: str | Path, serial: str) -> Path:
+    """Where the emulator writes the body-per-pixel mask of camera `serial`'s recording: `<serial>.instances.npy`."""
+    return Path(folder) / f"{serial}.instances.npy"
+
+
+def write_instance_masks(frames: Mapping[str, Frame], folder: str | Path) -> dict[str, Path]:
+    """Write each frame's body id per colour pixel (`Frame.instance_ids`, -1: none) beside its recording, replaced
+    atomically as the recordings are. A real camera has no such mask: the emulated cell hands it to the simulated
+    object detector only, as the twin backend does (sim.evaluate.emulated.EmulatedCell.capture)."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for serial, frame in frames.items():
+        if frame.instance_ids is None:
+            raise ValueError(f"camera {serial}: the frame carries no body mask to write")
+        path = instance_mask_path(folder, serial)
+        partial = folder / f".{serial}.{os.getpid()}.partial.npy"
+        try:
+            np.save(partial, np.asarray(frame.instance_ids, dtype=np.int32))
             os.replace(partial, path)
         finally:
             partial.unlink(missing_ok=True)

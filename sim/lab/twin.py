@@ -29,7 +29,7 @@ import numpy as np
 from sim.cell import SimCell
 from sim.gripper import Robotiq2F85
 from sim.lab.board import BoardBodies, CalibrationBoard
-from sim.lab.cameras import write_recordings
+from sim.lab.cameras import write_instance_masks, write_recordings
 from sim.lab.control import register
 from sim.lab.twin_arm import TwinArm
 from sim.lab.twin_fingers import TwinFingers
@@ -91,15 +91,19 @@ class TwinScene:
     def time_step(self) -> float:
         return self.cell.world.physics.time_step
 
-    def place(self, object_id: str, seed: int) -> dict:
+    def place(self, object_id: str, seed: int, scene: str | None = None, objects_per_scene: int = 4) -> dict:
         """Reset the scene as `SimCell.reset(seed, object_id)` does, with the arm and fingers where they are; render
-        the cameras into recordings (none without a recordings folder). Returns `truth()` plus the recordings' paths by camera serial."""
+        the cameras into recordings (none without a recordings folder). Returns `truth()` plus the recordings' paths
+        by camera serial. With `scene` ("packed" or "pile", `sim.scenes`) the object lies among the twin's others,
+        `objects_per_scene` in all: the reply adds the scene's plan and which body is which (`scene_truth`:
+        `target` and `names` by body id), and each camera's body-per-pixel mask is written beside its recording
+        (`sim.lab.cameras.write_instance_masks`, for the simulated object detector)."""
         if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
             raise ValueError(f"place: seed must be a non-negative integer, got {seed!r}")
         model = self._model(object_id)
         started = time.monotonic()
         with self.lock:
-            cell = self._cell_with(model)
+            cell = self._cell_with(model, scene, objects_per_scene)
             cell.reset(seed, object_id)
             robot = cell.robot
             self.arm.reload(robot)
@@ -109,6 +113,10 @@ class TwinScene:
             self._place_board()
             self._placed = {"object": object_id, "seed": seed,
                             "T_world_obj": np.round(cell.object_mesh()[1], 9).tolist()}
+            if scene is not None:
+                truth = cell.scene_truth()
+                self._placed.update(scene=cell.scene_plan.to_record(), scene_truth={
+                    "target": truth.target, "names": {str(body): name for body, name in truth.names.items()}})
             if self.recordings is not None:
                 self._frames = dict(zip(CAMERA_SERIALS, cell.capture(), strict=True))
             if self._clock is not None:
@@ -119,7 +127,10 @@ class TwinScene:
         return dict(placed, recordings={serial: str(path) for serial, path in paths.items()})
 
     def _write(self, frames: dict, **options) -> dict:
+        """The frames' recordings (and, in a scene of several objects, their body masks) in `recordings`."""
         with self._writing:
+            if self.cell is not None and self.cell.scene is not None:
+                write_instance_masks(frames, self.recordings)
             return write_recordings(frames, self.recordings, **options)
 
     def _place_board(self) -> None:
@@ -162,7 +173,8 @@ class TwinScene:
     def handlers(self) -> dict:
         """The control-channel commands of the twin (sim/lab/control.py: request dict -> reply fields)."""
         return {
-            "place": lambda request: self.place(request.get("object"), request.get("seed", 0)),
+            "place": lambda request: self.place(request.get("object"), request.get("seed", 0), request.get("scene"),
+                                                request.get("objects_per_scene", 4)),
             "truth": lambda request: self.truth(),
             "camera_stop": lambda request: self.stop_cameras(),
             "twin_state": lambda request: {"safety_status": self.arm.safety_status,
@@ -207,11 +219,19 @@ class TwinScene:
             self._models[object_id] = load_asset(object_id)
         return self._models[object_id]
 
-    def _cell_with(self, model) -> SimCell:
-        if self.cell is None or model.object_id not in {o.object_id for o in self.cell.objects}:
-            if self.cell is not None:
-                self.cell.close()
-            self.cell = SimCell(objects=list(self._models.values()), embodiment="arm")
+    def _cell_with(self, model, scene: str | None, objects_per_scene: int) -> SimCell:
+        """The twin cell holding `model`, alone or in `scene` among the installed twin's other objects."""
+        cell = self.cell
+        if (cell is None or model.object_id not in {o.object_id for o in cell.objects} or cell.scene != scene
+                or (scene is not None and cell.objects_per_scene != objects_per_scene)):
+            if cell is not None:
+                cell.close()
+            objects = list(self._models.values())
+            if scene is not None:
+                from seggrasp.objects import load_asset_set
+
+                objects = list(({o.object_id: o for o in load_asset_set()} | self._models).values())
+            self.cell = SimCell(objects=objects, embodiment="arm", scene=scene, objects_per_scene=objects_per_scene)
         return self.cell
 
     # --- time ---
