@@ -23,7 +23,9 @@ perceived points into instances and finds the requested one with the harness's d
 object's name the prompt (`seggrasp.target`); only that instance's mesh is reconstructed. When the detector finds
 it in none, nothing is planned: every slot of every request records `failure="not_found"`. Records say whether
 the target was found and, with the twin's truth of the scene (`GroundTruth.scene`), the chosen instance's IoU
-(`seggrasp.target.instance_iou`).
+(`seggrasp.target.instance_iou`). Every grasp must keep the hand clear of the other instances' points, open along
+its approach and closed (`Episode.clears_others`): one that would not is never sent to the cell and records
+`failure="collision"`, as a real cell, whose planner knows only the table and the arm, needs.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from seggrasp.cell import Cell, GraspOutcome
 from seggrasp.detect.base import Detector
 from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_per_prompt
 from seggrasp.grasp.antipodal import AntipodalConfig
+from seggrasp.grasp.clearance import clear_of
 from seggrasp.grasp.feasibility import Feasibility, judge_requests
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.select import TOP_K
@@ -319,6 +322,7 @@ class Episode:
         self._grasps: GraspSet | None = None
         self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
+        self._others: np.ndarray | None = None  # the other objects' perceived points (world), among others
         self._scene_fresh = False  # the cell's scene is as `reset` left it (no grasp executed since)
 
     @property
@@ -459,10 +463,25 @@ class Episode:
         self._true_feasibility.update(judge(missing, self.truth_on_mesh))
         return {k: self._true_feasibility[k] for k in indices}
 
+    def clears_others(self, T_world_grasp: np.ndarray, width: float) -> bool:
+        """Whether the grasp keeps the hand clear of the other objects the cameras saw on the table (True when the
+        object was not searched for among others; `seggrasp.grasp.clearance.clear_of`)."""
+        o = self.observation
+        if o.search is None or not o.found:
+            return True
+        if self._others is None:
+            others = [instance.points for index, instance in enumerate(o.instances) if index != o.search.index]
+            self._others = np.concatenate(others) if others else np.zeros((0, 3))
+        return clear_of(self.hand, T_world_grasp, width, self._others)
+
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
-        """Whether the cell would execute this grasp (`Cell.check_reach`; remembered per grasp). A cell that models
-        the scene checks it as a slot's execution will find it: reset first if a grasp was executed since."""
+        """Whether the grasp keeps clear of the other objects seen (`clears_others`) and the cell would execute it
+        (`Cell.check_reach`); remembered per grasp. A cell that models the scene checks it as a slot's execution
+        will find it: reset first if a grasp was executed since."""
         key = grasp_key(T_world_grasp, width)
+        if key not in self._reach and not self.clears_others(T_world_grasp, width):
+            LOG.debug("grasp refused: it would hit another object on the table")
+            self._reach[key] = False
         if key not in self._reach:
             if self.cell.models_scene and not self._scene_fresh:
                 self._reset_scene()
@@ -581,6 +600,10 @@ class Episode:
         return self.truth.contacts_on_part(slot.grasp.contacts[0], o.T_world_obj, o.perceived, slot.prompt_index)
 
     def _outcome(self, T_world_grasp: np.ndarray, width: float, reset: bool, record: TrialRecord) -> GraspOutcome:
+        if not self.clears_others(T_world_grasp, width):  # what a real cell's planner does not know of
+            return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, contacts_observed=False,
+                                message="refused: the hand would hit another object the cameras saw on the table",
+                                failure="collision")
         key = grasp_key(T_world_grasp, width)
         if self.outcome_cache is not None and key in self.outcome_cache:
             record.reused_outcome = True

@@ -12,11 +12,11 @@ from seggrasp.cell import Frame
 from seggrasp.cloud import radius_components
 from seggrasp.detect.base import Detections
 from seggrasp.detect.simulated import PRESETS, SimulatedObjectDetector
-from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings
+from seggrasp.episode import Episode, EpisodeContext, EpisodeSettings, action_slot
 from seggrasp.objects import load_asset, load_asset_set
 from seggrasp.perception import OrientedCloud, PerceptionConfig, instance_labels, mesh_of, split_instances
 from seggrasp.target import camera_views, find_target, instance_iou, true_bodies, visible_pixels
-from seggrasp.truth import GroundTruth
+from seggrasp.truth import DetectorSpec, GroundTruth
 from seggrasp.views import View
 from sim.cell import SimCell
 from sim.evaluate import main
@@ -273,3 +273,35 @@ def test_evaluate_finds_the_object_among_others_from_the_cameras(tmp_path):
     search = summary["methods"]["oracle"]["target_search"]["packed"]
     assert search["found"] == 1.0 and search["requests"] == 2 and search["instance_iou"] > 0.8
     assert "## Finding the object among the others" in (out / "summary.md").read_text()
+
+
+def test_grasps_that_would_hit_another_object_seen_are_refused_before_the_cell_moves():
+    """A packed scene (mug, hammer, bottle 5-30 mm apart): of the mug's grasps, those whose open hand along the
+    approach or closed fingers would take in another instance's points are refused without reaching the cell, and
+    recorded as collisions; the twin's own check, which knows the true bodies, refuses most of them too."""
+    cell = SimCell(objects=[load_asset(i) for i in IDS], embodiment="floating", scene="packed", objects_per_scene=3,
+                   seed=3, image_size=(320, 240))
+    try:
+        cell.reset(seed=3, object_id="mug_classic")
+        model = cell.current_object
+        context = EpisodeContext.from_object(model, 3)
+        truth = GroundTruth.of_object(model, context.prompts, lambda: cell.object_mesh()[1], cell.scene_truth)
+        settings = EpisodeSettings(top_k=1, perceive=True, workspace=workspace_of(cell), among_others=True)
+        episode = Episode(cell, context, DetectorSpec("simulated", preset="perfect", seed=3), truth, settings)
+        grasps = episode.grasps().transformed(episode.observation.T_world_obj)
+        assert episode.observation.search.found and len(grasps) > 50
+        picked = np.linspace(0, len(grasps) - 1, 60).astype(int)
+        clear = np.array([episode.clears_others(grasps.poses[i], float(grasps.widths[i])) for i in picked])
+        assert clear.any() and not clear.all()
+        refused = picked[~clear]
+        twin_refuses = [bool(cell.check_reach(grasps.poses[i], float(grasps.widths[i]))) for i in refused]
+        print(f"{len(refused)} of {len(picked)} grasps refused as hitting another object; the twin's check refuses "
+              f"{sum(twin_refuses)} of them")
+        assert sum(twin_refuses) >= 0.5 * len(refused)
+        first = refused[0]
+        assert not episode.reaches(grasps.poses[first], float(grasps.widths[first]))
+        record = episode.execute(action_slot(0, grasps.poses[first], float(grasps.widths[first])))
+    finally:
+        cell.close()
+    assert record.failure == "collision" and not record.reachable and not record.lifted
+    assert record.message == "refused: the hand would hit another object the cameras saw on the table"

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from seggrasp.grasp.clearance import COLLISION_CHUNK, collision_free
 from seggrasp.grasp.pads import box_corners, pad_bands, pressed_centres, sweep
 from seggrasp.grasp.poses import envelope_poses, level_poses, poses_around_axes
 from seggrasp.grasp.types import GraspSet
@@ -48,10 +49,6 @@ LOG = logging.getLogger(__name__)
 
 #: Offset (metres) that moves ray origins off the surface so a ray does not hit its own face.
 RAY_EPSILON = 1e-5
-#: Grasp candidates whose collision test is evaluated in one vectorised block.
-COLLISION_CHUNK = 256
-#: Every this many collision points form the sparse first pass of the collision test.
-COARSE_STRIDE = 8
 
 
 @dataclass(frozen=True)
@@ -297,9 +294,9 @@ class AntipodalSampler:
             free = np.ones(len(todo), dtype=bool)
             if plane is not None:
                 free &= self._above_plane(shifted, openings[todo], plane, clearance)
-            free[free] = self._collision_free(shifted[free], openings[todo][free], cloud)
+            free[free] = collision_free(self.gripper, shifted[free], openings[todo][free], cloud)
             # closing: the fingers behind the pads (they lean inwards) must not reach the object before the pads
-            free[free] = self._collision_free(shifted[free], widths[todo][free], cloud, closed=True)
+            free[free] = collision_free(self.gripper, shifted[free], widths[todo][free], cloud, closed=True)
             depth_index[todo[free]] = index
         return depth_index
 
@@ -348,38 +345,6 @@ class AntipodalSampler:
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
         return widths, alignment
-
-    def _collision_free(
-        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
-    ) -> np.ndarray:
-        """True where no cloud point lies inside a finger, the palm or the wrist. A sparse subset of the cloud
-        rejects most colliding poses cheaply; the survivors are checked against the whole cloud."""
-        free = self._cloud_outside_gripper(poses, openings, cloud[::COARSE_STRIDE], closed)
-        free[free] = self._cloud_outside_gripper(poses[free], openings[free], cloud, closed)
-        return free
-
-    def _cloud_outside_gripper(
-        self, poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, closed: bool = False
-    ) -> np.ndarray:
-        """True where no point of `cloud` lies inside a gripper box (vectorised over chunks of poses); `closed`
-        tests only the finger boxes behind the pads (the pads themselves close on the object)."""
-        g = self.gripper
-        free = np.ones(len(poses), dtype=bool)
-        cloud32 = cloud.astype(np.float32)
-        for start in range(0, len(poses), COLLISION_CHUNK):
-            chunk = poses[start : start + COLLISION_CHUNK].astype(np.float32)
-            half = (0.5 * openings[start : start + COLLISION_CHUNK]).astype(np.float32)[:, None]
-            rotations = chunk[:, :3, :3]
-            # cloud in each gripper frame: R^T (x - t)  ->  (G, M, 3)
-            local = np.matmul(cloud32[None], rotations) - np.matmul(chunk[:, None, :3, 3], rotations)
-            ax, ay, z = np.abs(local[..., 0]), np.abs(local[..., 1]), local[..., 2]
-            hit = np.zeros(ax.shape, dtype=bool)
-            for inner, outer, half_y, z_min, z_max in g.finger_boxes[1 if closed else 0 :]:  # mirrored: test |x|
-                hit |= (ax >= half + inner) & (ax <= half + outer) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
-            for half_x, half_y, z_min, z_max in () if closed else g.centre_boxes:
-                hit |= (ax <= half_x) & (ay <= half_y) & (z >= z_min) & (z <= z_max)
-            free[start : start + COLLISION_CHUNK] = ~hit.any(axis=1)
-        return free
 
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
         """True where every corner of every gripper box is at least `clearance` above the plane."""
