@@ -243,16 +243,22 @@ class NoObjectSpec:
         return NoBoxes()
 
 
-def test_a_target_the_detector_finds_in_no_instance_fails_every_slot_as_not_found():
+def packed_mug_episode(detector, top_k: int) -> tuple[SimCell, Episode]:
+    """The mug among the hammer and the bottle as packed (seed 3), and a perceiving episode for it among others."""
     cell = SimCell(objects=[load_asset(i) for i in IDS], embodiment="floating", scene="packed", objects_per_scene=3,
                    seed=3, image_size=(320, 240))
+    cell.reset(seed=3, object_id="mug_classic")
+    model = cell.current_object
+    context = EpisodeContext.from_object(model, 3)
+    truth = GroundTruth.of_object(model, context.prompts, lambda: cell.object_mesh()[1], cell.scene_truth)
+    settings = EpisodeSettings(top_k=top_k, perceive=True, workspace=workspace_of(cell), among_others=True)
+    return cell, Episode(cell, context, detector, truth, settings)
+
+
+def test_a_target_the_detector_finds_in_no_instance_fails_every_slot_as_not_found():
+    cell, episode = packed_mug_episode(NoObjectSpec(), top_k=2)
+    context = episode.context
     try:
-        cell.reset(seed=3, object_id="mug_classic")
-        model = cell.current_object
-        context = EpisodeContext.from_object(model, 3)
-        truth = GroundTruth.of_object(model, context.prompts, lambda: cell.object_mesh()[1], cell.scene_truth)
-        settings = EpisodeSettings(top_k=2, perceive=True, workspace=workspace_of(cell), among_others=True)
-        episode = Episode(cell, context, NoObjectSpec(), truth, settings)
         records = episode.run("oracle")
     finally:
         cell.close()
@@ -279,15 +285,8 @@ def test_grasps_that_would_hit_another_object_seen_are_refused_before_the_cell_m
     """A packed scene (mug, hammer, bottle 5-30 mm apart): of the mug's grasps, those whose open hand along the
     approach or closed fingers would take in another instance's points are refused without reaching the cell, and
     recorded as collisions; the twin's own check, which knows the true bodies, refuses most of them too."""
-    cell = SimCell(objects=[load_asset(i) for i in IDS], embodiment="floating", scene="packed", objects_per_scene=3,
-                   seed=3, image_size=(320, 240))
+    cell, episode = packed_mug_episode(DetectorSpec("simulated", preset="perfect", seed=3), top_k=1)
     try:
-        cell.reset(seed=3, object_id="mug_classic")
-        model = cell.current_object
-        context = EpisodeContext.from_object(model, 3)
-        truth = GroundTruth.of_object(model, context.prompts, lambda: cell.object_mesh()[1], cell.scene_truth)
-        settings = EpisodeSettings(top_k=1, perceive=True, workspace=workspace_of(cell), among_others=True)
-        episode = Episode(cell, context, DetectorSpec("simulated", preset="perfect", seed=3), truth, settings)
         grasps = episode.grasps().transformed(episode.observation.T_world_obj)
         assert episode.observation.search.found and len(grasps) > 50
         picked = np.linspace(0, len(grasps) - 1, 60).astype(int)
