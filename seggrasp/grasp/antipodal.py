@@ -49,6 +49,8 @@ LOG = logging.getLogger(__name__)
 
 #: Offset (metres) that moves ray origins off the surface so a ray does not hit its own face.
 RAY_EPSILON = 1e-5
+#: Rays cast in one call (`opposite_contacts`): bounds the intersector's memory.
+RAY_CHUNK = 512
 
 
 @dataclass(frozen=True)
@@ -375,9 +377,18 @@ def _check_plane(table_plane: np.ndarray | None) -> np.ndarray | None:
 def opposite_contacts(
     mesh: trimesh.Trimesh, points: np.ndarray, normals: np.ndarray, face_normals: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """First hit of a ray from each point along its inward normal: (p, q, n_p, n_q) for the rays that hit."""
+    """First hit of a ray from each point along its inward normal: (p, q, n_p, n_q) for the rays that hit. The rays
+    are cast `RAY_CHUNK` at a time: trimesh tests each ray against every triangle its bounding box meets, and all
+    rays at once over a perceived mesh of a packed scene took more than 5 GB."""
     origins = points - RAY_EPSILON * normals
-    locations, ray_index, tri_index = mesh.ray.intersects_location(origins, -normals, multiple_hits=False)
+    found = []
+    for start in range(0, len(origins), RAY_CHUNK):
+        locations, ray_index, tri_index = mesh.ray.intersects_location(
+            origins[start : start + RAY_CHUNK], -normals[start : start + RAY_CHUNK], multiple_hits=False)
+        found.append((np.asarray(ray_index, dtype=np.int64) + start, locations.reshape(-1, 3),
+                      np.asarray(tri_index, dtype=np.int64)))
+    ray_index, locations, tri_index = (np.concatenate(parts) for parts in zip(*found)) if found else (
+        np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
     order = np.argsort(ray_index, kind="stable")  # the intersector's output order is not guaranteed
     ray_index, locations, tri_index = ray_index[order], locations[order], tri_index[order]
     return points[ray_index], locations, normals[ray_index], face_normals[tri_index]
