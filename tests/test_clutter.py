@@ -153,3 +153,22 @@ def test_a_pile_settles_clear_of_the_parked_robot():
         assert all(np.linalg.norm(cell.world.client.getBaseVelocity(body)[0]) < 0.05 for body in bodies)
     finally:
         cell.close()
+
+
+def test_a_real_cell_among_other_objects_finds_its_object_by_the_name_given() -> None:
+    """`--scene` on a real cell: the operator laid out the table; the run searches for the object by its --objects
+    name and records only the scene's kind."""
+    from seggrasp.episode import TrialRecord
+    from sim.evaluate.cli import build_config, parse_args
+    from sim.evaluate.runner import record_extra, subject_of
+
+    config = build_config(parse_args([
+        "--backend", "real", "--config", "hardware/cell.example.yaml", "--detector", "owlv2", "--weights", "w",
+        "--objects", "coffee_mug", "--prompts", "handle,body", "--methods", "seggrasp", "--scene", "pile"]))
+    assert (config.scene, config.objects_per_scene, config.perceive) == ("pile", None, True)
+    context, truth = subject_of("coffee_mug", config, cell=None)
+    assert truth is None and context.object_name == "coffee mug" and context.prompts == ["handle", "body"]
+    record = TrialRecord(object_id="coffee_mug", category="real", method="seggrasp", detector="owlv2",
+                         prompt="handle", prompt_index=0, rank=0, seed=0, scene_seed=0, n_candidates=0, executed=False)
+    record_extra(record, config, cell=None)
+    assert record.extra["scene"] == {"kind": "pile"}
