@@ -465,9 +465,10 @@ class Episode:
 
     def clears_others(self, T_world_grasp: np.ndarray, width: float) -> bool:
         """Whether the grasp keeps the hand clear of the other objects the cameras saw on the table (True when the
-        object was not searched for among others; `seggrasp.grasp.clearance.clear_of`)."""
-        o = self.observation
-        if o.search is None or not o.found:
+        object was not searched for among others, or nothing was observed: a grasp given from outside;
+        `seggrasp.grasp.clearance.clear_of`)."""
+        o = self._observation
+        if o is None or o.search is None or not o.found:
             return True
         if self._others is None:
             others = [instance.points for index, instance in enumerate(o.instances) if index != o.search.index]
