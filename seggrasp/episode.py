@@ -323,6 +323,7 @@ class Episode:
         self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
         self._others: np.ndarray | None = None  # the other objects' perceived points (world), among others
+        self._clears: dict[str, bool] = {}  # `clears_others` per grasp key
         self._scene_fresh = False  # the cell's scene is as `reset` left it (no grasp executed since)
 
     @property
@@ -473,17 +474,21 @@ class Episode:
         if self._others is None:
             others = [instance.points for index, instance in enumerate(o.instances) if index != o.search.index]
             self._others = np.concatenate(others) if others else np.zeros((0, 3))
-        return clear_of(self.hand, T_world_grasp, width, self._others)
+        key = grasp_key(T_world_grasp, width)
+        if key not in self._clears:
+            self._clears[key] = clear_of(self.hand, T_world_grasp, width, self._others)
+        return self._clears[key]
 
     def reaches(self, T_world_grasp: np.ndarray, width: float) -> bool:
         """Whether the grasp keeps clear of the other objects seen (`clears_others`) and the cell would execute it
         (`Cell.check_reach`); remembered per grasp. A cell that models the scene checks it as a slot's execution
         will find it: reset first if a grasp was executed since."""
         key = grasp_key(T_world_grasp, width)
-        if key not in self._reach and not self.clears_others(T_world_grasp, width):
-            LOG.debug("grasp refused: it would hit another object on the table")
-            self._reach[key] = False
         if key not in self._reach:
+            if not self.clears_others(T_world_grasp, width):
+                LOG.debug("grasp refused: it would hit another object on the table")
+                self._reach[key] = False
+                return False
             if self.cell.models_scene and not self._scene_fresh:
                 self._reset_scene()
             reason = self.cell.check_reach(T_world_grasp, width)

@@ -381,14 +381,14 @@ def opposite_contacts(
     are cast `RAY_CHUNK` at a time: trimesh tests each ray against every triangle its bounding box meets, and all
     rays at once over a perceived mesh of a packed scene took more than 5 GB."""
     origins = points - RAY_EPSILON * normals
-    found = []
+    rays, hits, triangles = [np.zeros(0, dtype=np.int64)], [np.zeros((0, 3))], [np.zeros(0, dtype=np.int64)]
     for start in range(0, len(origins), RAY_CHUNK):
         locations, ray_index, tri_index = mesh.ray.intersects_location(
             origins[start : start + RAY_CHUNK], -normals[start : start + RAY_CHUNK], multiple_hits=False)
-        found.append((np.asarray(ray_index, dtype=np.int64) + start, locations.reshape(-1, 3),
-                      np.asarray(tri_index, dtype=np.int64)))
-    ray_index, locations, tri_index = (np.concatenate(parts) for parts in zip(*found)) if found else (
-        np.zeros(0, dtype=np.int64), np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        rays.append(np.asarray(ray_index, dtype=np.int64) + start)
+        hits.append(np.asarray(locations).reshape(-1, 3))
+        triangles.append(np.asarray(tri_index, dtype=np.int64))
+    ray_index, locations, tri_index = np.concatenate(rays), np.concatenate(hits), np.concatenate(triangles)
     order = np.argsort(ray_index, kind="stable")  # the intersector's output order is not guaranteed
     ray_index, locations, tri_index = ray_index[order], locations[order], tri_index[order]
     return points[ray_index], locations, normals[ray_index], face_normals[tri_index]

@@ -144,8 +144,9 @@ class EmulatedCell:
                        for camera in real.config.cameras}
         recordings_folder(real.config)  # the cameras play what the emulator writes
         self.scene, self.objects_per_scene = scene, objects_per_scene
+        self.scene_plan = None  # the `sim.scenes.ScenePlan` the emulator laid out last (None: the object alone)
+        self._scene_truth: SceneTruth | None = None
         self._true_pose: np.ndarray | None = None
-        self._placed: dict = {}
 
     @classmethod
     def from_config(cls, path: str | Path, dry_run: bool = False, scene: str | None = None,
@@ -181,22 +182,20 @@ class EmulatedCell:
                 raise ValueError(f"camera {serial} plays {path}, but the emulator wrote {written.get(serial)} (its "
                                  f"cameras are {sorted(written)}): start it with --recordings {path.parent}")
         self._true_pose = np.asarray(reply["T_world_obj"], dtype=np.float64)
-        self._placed = reply
+        if "scene" in reply:
+            from sim.scenes import ScenePlan
 
-    @property
-    def scene_plan(self):
-        """The `sim.scenes.ScenePlan` the emulator laid out last (None: the object alone)."""
-        from sim.scenes import ScenePlan
-
-        return ScenePlan.from_record(self._placed["scene"]) if "scene" in self._placed else None
+            self.scene_plan = ScenePlan.from_record(reply["scene"])
+            truth = reply["scene_truth"]
+            self._scene_truth = SceneTruth(int(truth["target"]),
+                                           {int(body): name for body, name in truth["names"].items()})
 
     def scene_truth(self) -> SceneTruth:
         """Which of the emulator's bodies (the values of the frames' `instance_ids`) is which object, the requested
         one the target."""
-        if "scene_truth" not in self._placed:
+        if self._scene_truth is None:
             raise ValueError("the emulated cell has laid out no scene of several objects (reset() with a scene)")
-        truth = self._placed["scene_truth"]
-        return SceneTruth(int(truth["target"]), {int(body): name for body, name in truth["names"].items()})
+        return self._scene_truth
 
     def true_pose(self) -> np.ndarray:
         """`T_world_obj` of the object as the emulator placed it (what the cameras saw) in the RTDE base frame."""

@@ -31,6 +31,7 @@ import numpy as np
 import pyrealsense2 as rs
 
 from seggrasp.cell import Frame
+from seggrasp.io import atomic_save_npy
 from sim.cameras import D435_WIDTH, DepthNoise
 
 #: The D435 depth stream's focal length at 640x480 (the 1280x800 imagers scaled by 0.6; units vary around it).
@@ -130,20 +131,12 @@ def write_instance_masks(frames: Mapping[str, Frame], folder: str | Path) -> dic
     """Write each frame's body id per colour pixel (`Frame.instance_ids`, -1: none) beside its recording, replaced
     atomically as the recordings are. A real camera has no such mask: the emulated cell hands it to the simulated
     object detector only, as the twin backend does (sim.evaluate.emulated.EmulatedCell.capture)."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     paths = {}
     for serial, frame in frames.items():
         if frame.instance_ids is None:
             raise ValueError(f"camera {serial}: the frame carries no body mask to write")
-        path = instance_mask_path(folder, serial)
-        partial = folder / f".{serial}.{os.getpid()}.partial.npy"
-        try:
-            np.save(partial, np.asarray(frame.instance_ids, dtype=np.int32))
-            os.replace(partial, path)
-        finally:
-            partial.unlink(missing_ok=True)
-        paths[serial] = path
+        paths[serial] = path = instance_mask_path(folder, serial)
+        atomic_save_npy(path, np.asarray(frame.instance_ids, dtype=np.int32))
     return paths
 
 
