@@ -214,10 +214,9 @@ def observe(
         return Observation(perceive_object(cell.capture(), workspace), np.eye(4), perceived=True)
     from seggrasp.target import find_target
 
-    instances = split_instances(cell.capture(), workspace)
-    search = find_target(instances, detector, name)
-    mesh = mesh_of(instances[search.index]) if search.found else None
-    return Observation(mesh, np.eye(4), True, instances, search)
+    search = find_target(split_instances(cell.capture(), workspace), detector, name)
+    mesh = mesh_of(search.instances[search.index]) if search.found else None
+    return Observation(mesh, np.eye(4), True, search.instances, search)
 
 
 def grasp_key(T_world_grasp: np.ndarray, width: float) -> str:

@@ -188,7 +188,8 @@ def split_instances(
     Fusion, table removal and clean-up are `fuse_oriented_cloud`'s (module docstring 1-5); then the points are
     split into the groups that rest on the table, finer than one object's clean-up links them (`instance_labels`),
     each with its normals estimated from its own points. Each shares the table plane and the registered frames, so
-    `mesh_of` reconstructs it alone, carved by what the cameras saw. Touching objects are one instance.
+    `mesh_of` reconstructs it alone, carved by what the cameras saw. Touching objects are one instance
+    (`seggrasp.target.find_target` cuts the target's by its detector boxes).
     """
     config = config or PerceptionConfig()
     cleaned = _cleaned_cloud(frames, workspace, config, seed)

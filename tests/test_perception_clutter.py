@@ -161,6 +161,34 @@ def test_a_small_object_inside_a_large_one_s_box_does_not_win_its_request():
     search = find_target(clouds, OneBox([20, 20, 81, 81]), "frying pan")  # the pan's box holds all of the cup
     assert search.index == 1 and search.scores[1] > 0.85 and search.scores[0] < 0.05
 
+def _flat_instance(points: np.ndarray) -> tuple[Frame, OrientedCloud]:
+    """One 100 x 100 camera at the origin looking along +z (f = 100 px) and one instance of points at z = 1 m."""
+    K = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    frame = Frame("flat", np.zeros((100, 100, 3), np.uint8), np.full((100, 100), 2.0, np.float32), K, np.eye(4))
+    normals = np.tile([0, 0, -1.0], (len(points), 1))
+    return frame, OrientedCloud(points, normals, np.array([0, 0, 1.0]), 0.0, 0.004, [frame])
+
+
+def test_touching_objects_seen_as_one_instance_are_cut_by_the_target_s_boxes():
+    grid = np.stack(np.meshgrid(np.linspace(-0.3, 0.0, 7), np.linspace(-0.3, 0.3, 13)), -1).reshape(-1, 2)
+    target = np.c_[grid, np.ones(len(grid))]  # pixels 20-50
+    other = np.c_[grid[:, 0] + 0.4, grid[:, 1], np.ones(len(grid))]  # pixels 60-90, touching it in 3-D
+    _, merged = _flat_instance(np.r_[target, other])
+    search = find_target([merged], OneBox([20, 20, 51, 81]), "spatula")
+    assert search.index == 0 and len(search.instances) == 2
+    np.testing.assert_array_equal(search.instances[0].points, target)
+    np.testing.assert_array_equal(search.instances[1].points, other)  # an obstacle like the other instances
+    assert len(search.instances[0].normals) == len(target)
+
+
+def test_a_box_around_a_small_part_of_the_instance_does_not_cut_it():
+    grid = np.stack(np.meshgrid(np.linspace(-0.3, 0.3, 13), np.linspace(-0.3, 0.3, 13)), -1).reshape(-1, 2)
+    _, instance = _flat_instance(np.c_[grid, np.ones(len(grid))])
+    search = find_target([instance], OneBox([20, 20, 31, 31]), "pan")  # would keep 9 of 169 points
+    assert search.found and search.instances == [instance]
+    assert find_target([instance], OneBox([18, 18, 83, 83]), "pan").instances == [instance]  # nothing outside
+
+
 def _two_bodies_view() -> View:
     ids = np.full((120, 160), -1, dtype=np.int64)
     ids[20:60, 10:50] = 7  # the named target
