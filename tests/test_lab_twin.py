@@ -103,6 +103,29 @@ def test_pressing_into_the_table_is_a_protective_stop(mug):
     assert not arm.is_moving()  # a stopped arm starts nothing
 
 
+def test_pressing_down_on_another_object_of_the_scene_is_a_protective_stop():
+    scene = TwinScene("mug_classic", 3, None)
+    try:
+        scene.place("mug_classic", 3, scene="packed", objects_per_scene=4)
+        scene.arm.set_tcp([0.0, 0.0, 0.15, 0.0, 0.0, 0.0])
+        client = scene.cell.world.client
+        body = scene.cell.neighbours[0][0]
+        low, high = (np.array(corner) for corner in client.getAABB(body))
+        x, y = (low[:2] + high[:2]) / 2
+        start = client.getBasePositionAndOrientation(body)[0]
+        scene.arm.move_linear(down_at(x, y, high[2] + 0.2), 0.25, 1.0)
+        run(scene)
+        assert scene.arm.safety_status == "normal"
+        scene.arm.move_linear(down_at(x, y, low[2] - 0.05), 0.1, 0.5)  # through it into the table
+        run(scene)
+        assert scene.arm.safety_status == "protective_stop", "the arm pressed on another object and went on"
+        assert "N on the table and other objects (" in scene.arm.stop_reason
+        assert scene.arm.actual_tcp_pose()[2] > low[2]  # halted on the object, not at the target below it
+        assert np.linalg.norm(np.subtract(client.getBasePositionAndOrientation(body)[0], start)[:2]) < 0.05
+    finally:
+        scene.close()
+
+
 def test_inverse_kinematics(mug):
     arm = mug.arm
     here = arm.actual_tcp_pose()

@@ -250,7 +250,8 @@ class TwinScene:
             cell.world.step()
             self.sim_time = now
             self.arm.after_step(robot, cell.world.table_id, cell.object_body,
-                                cell.current_object.mass * -cell.world.physics.gravity)
+                                cell.current_object.mass * -cell.world.physics.gravity,
+                                [body for body, _ in cell.neighbours])
             self.fingers.after_step(robot.gripper)
 
     def start(self) -> None:

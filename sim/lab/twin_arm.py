@@ -6,13 +6,15 @@ and tracked every physics step by the UR5's joint servos (`UR5Arm._command`, as 
 ends when the arm has settled on its end (and, when the scene renders its cameras after every motion, once they
 have been rendered). The arm halts where it is on a safety stop: one the controller sets, or a
 protective stop of its own when, during a motion, a link of the arm (upper arm to wrist) touches the table, or the
-robot presses on the table, directly or through the object, with more than `PROTECTIVE_FORCE` for
-`PROTECTIVE_STEPS` physics steps. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
+robot presses on the table (directly or through the object) and on the other objects of a scene with more than
+`PROTECTIVE_FORCE` in all for `PROTECTIVE_STEPS` physics steps. Brushing another object aside stops nothing: a real
+arm feels the force it takes, not the touch. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -147,7 +149,7 @@ class TwinArm:
             return
         robot._command(np.asarray(reference.q), np.asarray(reference.qd))  # the UR5's servos, as the twin's moves
 
-    def after_step(self, robot: UR5Arm, table: int, obj: int, weight: float) -> None:
+    def after_step(self, robot: UR5Arm, table: int, obj: int, weight: float, others: Sequence[int] = ()) -> None:
         """Read the joints, end a motion once the arm has settled on its end, and watch for a protective stop."""
         states = robot.world.client.getJointStates(robot.body, robot.arm_joints)
         self._q = np.array([s[0] for s in states])
@@ -166,7 +168,7 @@ class TwinArm:
         else:
             self._settling = 0.0
         if self.safety_status == "normal" and reference is not None:  # the controller watches its own motions
-            reason = self._collision(robot, table, obj, weight)
+            reason = self._collision(robot, table, obj, weight, others)
             if reason:
                 self._protective_stop(robot, reason)
 
@@ -181,11 +183,12 @@ class TwinArm:
         log.warning("protective stop: %s", reason)
         self._halt(robot)
 
-    def _collision(self, robot: UR5Arm, table: int, obj: int, weight: float) -> str:
-        """Why the controller would stop the arm: a link of the arm on the table, or the robot pressing down on the
-        table (directly, or through the object: the table's push on it beyond its `weight`) with more than
-        `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` steps; "" otherwise. (The contact forces between the fingers and
-        the object do not sum to what the arm feels in PyBullet: the squeeze leaves tens of newtons of residue.)"""
+    def _collision(self, robot: UR5Arm, table: int, obj: int, weight: float, others: Sequence[int] = ()) -> str:
+        """Why the controller would stop the arm: a link of the arm on the table, or the robot pressing on the
+        table (directly, or through the object: the table's push on it beyond its `weight`) and on the `others`
+        (bodies of the other objects on the table) with more than `PROTECTIVE_FORCE` for `PROTECTIVE_STEPS` steps;
+        "" otherwise. (The contact forces between the fingers and the object do not sum to what the arm feels in
+        PyBullet: the squeeze leaves tens of newtons of residue.)"""
         c = robot.world.client
         press = 0.0
         for point in c.getContactPoints(bodyA=robot.body, bodyB=table):
@@ -193,10 +196,12 @@ class TwinArm:
                 return f"arm-table collision ({c.getJointInfo(robot.body, point[3])[12].decode()} touches the table)"
             press += point[9]
         press += max(0.0, sum(point[9] for point in c.getContactPoints(bodyA=obj, bodyB=table)) - weight)
-        self._over_force = self._over_force + 1 if press > PROTECTIVE_FORCE else 0
+        on_others = sum(point[9] for body in others for point in c.getContactPoints(bodyA=robot.body, bodyB=body))
+        self._over_force = self._over_force + 1 if press + on_others > PROTECTIVE_FORCE else 0
         if self._over_force >= PROTECTIVE_STEPS:
             self._over_force = 0
-            return f"the tool presses {press:.0f} N on the table, above the {PROTECTIVE_FORCE:.0f} N limit"
+            where = "on the table" if on_others == 0 else f"on the table and other objects ({on_others:.0f} N on them)"
+            return f"the tool presses {press + on_others:.0f} N {where}, above the {PROTECTIVE_FORCE:.0f} N limit"
         return ""
 
     def _halt(self, robot: UR5Arm) -> None:
