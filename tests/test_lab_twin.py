@@ -103,6 +103,27 @@ def test_pressing_into_the_table_is_a_protective_stop(mug):
     assert not arm.is_moving()  # a stopped arm starts nothing
 
 
+def test_an_arm_blocked_on_its_path_is_a_protective_stop(mug):
+    """A joint held back by something in the arm's way (here a fixed post beside the wrist; in a run, the forearm
+    on the bottle it carried) ends the motion in a protective stop, not at rest short of its target."""
+    arm, client, robot = mug.arm, mug.cell.world.client, mug.cell.robot
+    low, high = (np.array(corner) for corner in client.getAABB(robot.body, robot.arm_joints[4]))  # wrist 2
+    wrist = (low + high) / 2
+    sideways = np.array([-wrist[1], wrist[0], 0.0]) / np.linalg.norm(wrist[:2])  # where a base turn moves it
+    post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[0.03, 0.03, 0.1])
+    for side in (1.0, -1.0):  # a post on either side, 7 cm clear: whichever way the base turns, the wrist meets one
+        client.createMultiBody(0.0, post, basePosition=(wrist + side * 0.15 * sideways).tolist())
+    mug.advance(0.1)
+    assert arm.safety_status == "normal"
+    target = np.array(arm.actual_q()) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.move_joints(target, 0.5, 1.0)
+    run(mug)
+    assert arm.safety_status == "protective_stop", "the arm was held back and its motion ended as if done"
+    assert arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ")
+    assert "wrist" in arm.stop_reason and "on another object" in arm.stop_reason
+    assert abs(arm.actual_q()[0] - target[0]) > 0.4  # halted at the post, far from the target
+
+
 def test_pressing_down_on_another_object_of_the_scene_is_a_protective_stop():
     scene = TwinScene("mug_classic", 3, None)
     try:

@@ -5,10 +5,13 @@ the arm's actual joints: trapezoidal profiles, inverse kinematics, joint limits,
 and tracked every physics step by the UR5's joint servos (`UR5Arm._command`, as the twin's own motions); a motion
 ends when the arm has settled on its end (and, when the scene renders its cameras after every motion, once they
 have been rendered). The arm halts where it is on a safety stop: one the controller sets, or a
-protective stop of its own when, during a motion, a link of the arm (upper arm to wrist) touches the table, or the
+protective stop of its own when, during a motion, a link of the arm (upper arm to wrist) touches the table, the
 robot presses on the table (directly or through the object) and on the other objects of a scene with more than
-`PROTECTIVE_FORCE` in all for `PROTECTIVE_STEPS` physics steps. Brushing another object aside stops nothing: a real
-arm feels the force it takes, not the touch. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
+`PROTECTIVE_FORCE` in all for `PROTECTIVE_STEPS` physics steps, or a joint falls more than `PATH_DEVIATION` behind
+its path for as many steps (something blocks the arm: e.g. the forearm on the object it carries). Brushing another
+object aside stops nothing: a real arm feels the force it takes, not the touch. Assumption, not checked against a
+UR: its collision detection (joint torques against the model; "position deviates from path") stops a blocked arm
+at about that deviation. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
 """
 
 from __future__ import annotations
@@ -35,8 +38,13 @@ T_WORLD_BASELINK = np.linalg.inv(T_BASELINK_DHBASE)
 #: Force (N) the robot may press on the table, directly or through the object, before the emulated controller
 #: stops the arm: the tool force limit of the emulated safety configuration.
 PROTECTIVE_FORCE = 150.0
-#: Physics steps in a row the force must stay above the limit (one step's solver spike does not stop the arm).
+#: Physics steps in a row the force (or the deviation) must stay above its limit (one step's solver spike does not
+#: stop the arm).
 PROTECTIVE_STEPS = 3
+#: How far (rad) a joint may trail its path before the controller calls the arm blocked: its servos track within
+#: 0.004 rad through the emulated cell's grasps (twin UR5, 125 Hz references); an arm whose forearm pressed on the
+#: bottle it carried trailed by 0.26 rad and its motion ended 60 mm short.
+PATH_DEVIATION = 0.05
 #: A motion has ended once every joint is this close (rad) to its end and slower than `SETTLED_SPEED` (rad/s), or
 #: `SETTLE_TIME` (s) after its reference came to rest.
 SETTLED_ERROR = 1e-3
@@ -61,6 +69,7 @@ class TwinArm:
         self._reference: KinematicArm | None = None
         self._moving = False
         self._over_force = 0
+        self._deviating = 0
         self._arm_links: set[int] = set()  # the robot's links from the upper arm to wrist 3
 
     # --- state (cached) ---
@@ -168,7 +177,7 @@ class TwinArm:
         else:
             self._settling = 0.0
         if self.safety_status == "normal" and reference is not None:  # the controller watches its own motions
-            reason = self._collision(robot, table, obj, weight, others)
+            reason = self._deviation(robot, reference, table, obj) or self._collision(robot, table, obj, weight, others)
             if reason:
                 self._protective_stop(robot, reason)
 
@@ -203,6 +212,22 @@ class TwinArm:
             where = "on the table" if on_others == 0 else f"on the table and other objects ({on_others:.0f} N on them)"
             return f"the tool presses {press + on_others:.0f} N {where}, above the {PROTECTIVE_FORCE:.0f} N limit"
         return ""
+
+    def _deviation(self, robot: UR5Arm, reference: KinematicArm, table: int, obj: int) -> str:
+        """Why the controller would call the arm blocked: a joint more than `PATH_DEVIATION` from its path (the
+        `reference`) for `PROTECTIVE_STEPS` steps, named with what the arm's links touch; "" otherwise."""
+        error = np.abs(self._q - np.asarray(reference.q))
+        self._deviating = self._deviating + 1 if error.max() > PATH_DEVIATION else 0
+        if self._deviating < PROTECTIVE_STEPS:
+            return ""
+        self._deviating = 0
+        c = robot.world.client
+        names = {table: "the table", obj: "the object"}
+        touched = sorted({f"{c.getJointInfo(robot.body, p[3])[12].decode()} on {names.get(p[2], 'another object')}"
+                          for p in c.getContactPoints(bodyA=robot.body) if p[3] in self._arm_links})
+        joint = int(np.argmax(error))
+        return (f"position deviates from path: {c.getJointInfo(robot.body, robot.arm_joints[joint])[1].decode()} "
+                f"{error[joint]:.3f} rad off its path (blocked: {', '.join(touched) or 'no link of the arm touches'})")
 
     def _halt(self, robot: UR5Arm) -> None:
         """Brake where the arm is and end its motion."""
