@@ -5,7 +5,8 @@ it from `capture()` with `seggrasp.perception.perceive_object(frames, workspace)
 approach, close, lift, hold, judges the grasp by what the gripper reports (object detection when closing and
 after the hold, the finger gap; `judge_hold`), names the failure, then puts the object back down and backs off. Every pose of the sequence is checked against the safety limits before the first command
 is sent; a refused or unreachable grasp is reported as `reachable=False`, never raised. A lost connection or a
-protective/emergency stop stops the arm and raises (`ConnectionLostError` / `RobotStoppedError`).
+protective/emergency stop stops the arm and raises (`ConnectionLostError` / `RobotStoppedError`); raised while
+putting the object back, the error's `outcome` is the grasp as judged after the hold.
 """
 
 from __future__ import annotations
@@ -248,6 +249,11 @@ class RealCell:
                 time.sleep(motion.hold_time)
             held = self.gripper.object_detected()
             width_held = self.gripper.width()
+        except HardwareError as exc:
+            raise self._abort(stage, exc) from exc
+        outcome = self._judged(grip.object_detected, held, grip.width, width_held)
+
+        try:
             if held or self.dry_run:  # a dry run plans the whole sequence
                 stage = "putting the object back"
                 self.arm.move_linear(place, motion.tool_speed, motion.tool_acceleration)
@@ -257,16 +263,20 @@ class RealCell:
                 stage = "backing off"
                 self.arm.move_linear(retreat, motion.tool_speed, motion.tool_acceleration)
         except HardwareError as exc:
-            raise self._abort(stage, exc) from exc
+            raise self._abort(stage, exc, outcome) from exc
+        return outcome
 
-        failure = "" if self.dry_run else judge_hold(grip.object_detected, held, grip.width, width_held)
+    def _judged(self, closed_on_object: bool, held: bool, width_closed: float, width_held: float) -> GraspOutcome:
+        """The grasp's outcome from what the gripper reported when closing and after the hold (`judge_hold`)."""
+        cfg = self.config
+        failure = "" if self.dry_run else judge_hold(closed_on_object, held, width_closed, width_held)
         message = ("dry run: motions planned and logged, nothing moved" if self.dry_run else
-                   f"object {'held' if held else 'not held'} after a {motion.hold_time:.1f} s hold "
-                   f"(closed on an object: {grip.object_detected}, finger gap {width_held * 1000:.1f} mm)"
+                   f"object {'held' if held else 'not held'} after a {cfg.motion.hold_time:.1f} s hold "
+                   f"(closed on an object: {closed_on_object}, finger gap {width_held * 1000:.1f} mm)"
                    + (f": {failure}" if failure else ""))
         log.info("grasp outcome: %s", message)
         lifted = held and not failure
-        return GraspOutcome(reachable=True, lifted=lifted, lift_height=motion.lift_height if lifted else 0.0,
+        return GraspOutcome(reachable=True, lifted=lifted, lift_height=cfg.motion.lift_height if lifted else 0.0,
                             contact_force=cfg.gripper.force if held else 0.0, contacts_observed=False,
                             message=message, failure=failure)
 
@@ -333,9 +343,12 @@ class RealCell:
         return GraspOutcome(reachable=False, lifted=False, lift_height=0.0, contacts_observed=False,
                             message=message, failure=failure)
 
-    def _abort(self, stage: str, exc: HardwareError) -> HardwareError:
-        """Stop the arm and turn a hardware failure into an error that says what the cell was doing."""
+    def _abort(self, stage: str, exc: HardwareError, outcome: GraspOutcome | None = None) -> HardwareError:
+        """Stop the arm and turn a hardware failure into an error that says what the cell was doing; after the
+        hold it carries the grasp's judged `outcome` (the put-back is no part of the grasp)."""
         self.arm.stop()
         kind = type(exc) if isinstance(exc, (ConnectionLostError, RobotStoppedError)) else HardwareError
         log.error("grasp aborted while %s: %s", stage, exc)
-        return kind(f"grasp aborted while {stage}: {exc}")
+        error = kind(f"grasp aborted while {stage}: {exc}")
+        error.outcome = outcome
+        return error

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 
 class HardwareError(RuntimeError):
-    """Something went wrong while talking to the real cell."""
+    """Something went wrong while talking to the real cell. Raised after a grasp was judged (while putting the
+    object back), `outcome` holds that judgement (a `seggrasp.cell.GraspOutcome`); None otherwise."""
+
+    outcome = None
 
 
 class SafetyError(HardwareError):

@@ -11,7 +11,7 @@ import pytest
 
 from fakes_hardware import (EXAMPLE_CONFIG, FakeAlign, FakePipeline, FakeRobotiqServer, FakeUR, box_on_table,
                             cell_config_for_fakes, example_config, synthetic_frames, write_config)
-from hardware import ConnectionLostError, RealCell
+from hardware import ConnectionLostError, RealCell, RobotStoppedError
 from hardware.cell import judge_hold
 from hardware.config import load_config
 from hardware.ur import matrix_from_ur_pose
@@ -220,6 +220,24 @@ def test_connection_lost_while_lifting_stops_with_a_clear_error(rig):
     with pytest.raises(ConnectionLostError, match="grasp aborted while lifting"):
         rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
     assert rig.heights()[-1] == 0.25
+
+
+def test_a_stop_while_putting_the_object_back_keeps_the_judged_grasp(rig):
+    """The put-back is no part of the grasp: a protective stop there (a slipped object pressed into the table) is
+    raised, as every stop is, with the grasp's judgement as it stood after the hold."""
+    rig.cell.reset()
+    rig.ur.motion_polls = 20
+
+    def stop_on_put_back(kind, target):
+        if kind == "moveL" and abs(target[2] - 0.06) < 1e-6:  # the put-back pose, 1 cm above the grasp
+            rig.ur.protective_stop_after_polls = 3
+
+    rig.ur.on_motion = stop_on_put_back
+    with pytest.raises(RobotStoppedError, match="grasp aborted while putting the object back") as stopped:
+        rig.cell.execute(top_down([0.52, 0.1, 0.05]), 0.05)
+    outcome = stopped.value.outcome
+    assert outcome.reachable and outcome.lifted and outcome.failure == "" and "object held" in outcome.message
+    assert rig.heights() == [0.15, 0.05, 0.25, 0.06]
 
 
 def test_gripper_connection_lost_while_closing(rig):

@@ -13,8 +13,9 @@ emulates: the twin behind the real wire (ur_rtde, the Robotiq URCap socket, pyre
   the emulator lays the object among the twin's others and tells which body is which (`EmulatedCell.scene_truth`,
   the frames' body masks), and the run finds the object from the cameras as a real cell's would;
 - records a protective stop during a grasp as a failed trial (`collision`, the stop named) after releasing it
-  as an operator would (control channel `release`, then `URArm.reconnect` uploads the control script again);
-  on the real cell the stop ends the object's task.
+  as an operator would (control channel `release`, then `URArm.reconnect` uploads the control script again),
+  and one while putting the object back as the grasp was judged after the hold; on the real cell the stop ends
+  the object's task.
 """
 
 from __future__ import annotations
@@ -231,7 +232,8 @@ class EmulatedCell:
 
     def execute(self, T_world_grasp: np.ndarray, width: float) -> GraspOutcome:
         """RealCell's grasp; a protective stop of the twin's arm on the way is released and recorded as a
-        `collision` (any other stop is raised, as on the real cell)."""
+        `collision`, or, while putting the object back, after the grasp's judgement as judged (any other stop is
+        raised, as on the real cell)."""
         from hardware.errors import RobotStoppedError
         from sim.lab.control import request
 
@@ -245,6 +247,8 @@ class EmulatedCell:
             log.warning("%s (%s): releasing the stop and uploading the control script again", exc, reason)
             request("release")
             self.real.arm.reconnect()
+            if exc.outcome is not None:  # stopped while putting the object back: the grasp was judged before
+                return replace(exc.outcome, message=f"{exc.outcome.message}; then {exc} ({reason}), released")
             return GraspOutcome(reachable=True, lifted=False, lift_height=0.0, contacts_observed=False,
                                 message=f"{exc} ({reason}); the emulator released the stop", failure="collision")
 
