@@ -148,6 +148,22 @@ def test_the_report_s_grasp_figures_are_the_interval_means_and_keep_their_values
         assert figures[name] == pytest.approx(intervals[name]["mean"]), name
 
 
+def test_what_grasps_did_to_the_other_objects_is_not_swayed_by_one_knocked_off_the_table() -> None:
+    """The farthest-moved neighbour per executed grasp: median and 90th percentile, the shares moved >= 10 mm and
+    lifted along; an object knocked off the twin's table falls on (28 m in a pile run) and must not set the figure."""
+    from sim.evaluate.report import grasp_metrics
+
+    farthest = [0.0, 0.001, 0.002, 0.003, 0.004, 0.005, 0.006, 0.02, 0.03, 28.0]
+    base = _mixed_rows()[0]
+    rows = [dict(base, rank=k, executed=True, outcome={"disturbance": [d / 2, d], "lifted_along": int(k == 0)})
+            for k, d in enumerate(farthest)]
+    figures = grasp_metrics(rows)
+    assert figures["disturbance_median_mm"] == pytest.approx(4.5)
+    assert figures["disturbance_p90_mm"] == pytest.approx(1000 * (0.03 + 0.1 * (28.0 - 0.03)))
+    assert figures["disturbed"] == pytest.approx(0.3) and figures["lifted_along"] == pytest.approx(0.1)
+    assert "disturbance_median_mm" not in grasp_metrics([dict(row, outcome={}) for row in rows])  # objects alone
+
+
 def test_the_report_and_the_intervals_share_one_metric_definition(monkeypatch) -> None:
     from sim.evaluate.report import grasp_metrics
 

@@ -121,15 +121,17 @@ DISTURBED = 0.01
 
 
 def _disturbance(executed: list[dict]) -> dict:
-    """In a scene of several objects, over the executed trials: the mean of the farthest any other object moved
-    (mm), the share of trials that moved one at least `DISTURBED` and the share that lifted one along ({} for
+    """In a scene of several objects, over the executed trials: the median and 90th percentile of the farthest any
+    other object moved (mm; not the mean: an object knocked off the twin's table falls on for the rest of the trial,
+    metres), the share of trials that moved one at least `DISTURBED` and the share that lifted one along ({} for
     objects alone)."""
     moved = [(r.get("outcome") or {}).get("disturbance") for r in executed]
     if not any(moved):
         return {}
     farthest = [max(m) if m else 0.0 for m in moved]
     lifted = [(r.get("outcome") or {}).get("lifted_along", 0) > 0 for r in executed]
-    return {"disturbance_mm": 1000 * float(np.mean(farthest)),
+    median, p90 = (1000 * float(v) for v in np.percentile(farthest, [50, 90]))
+    return {"disturbance_median_mm": median, "disturbance_p90_mm": p90,
             "disturbed": float(np.mean([f >= DISTURBED for f in farthest])), "lifted_along": float(np.mean(lifted))}
 
 
@@ -340,15 +342,18 @@ def _infeasible(methods: dict) -> list[str]:
 
 def _neighbours(methods: dict) -> list[str]:
     """A scene run's table of what each method's executed grasps did to the other objects."""
-    rows = [[name, _fmt(m["success_all_slots"]), f"{m['disturbance_mm']:.1f}", _fmt(m["disturbed"]),
-             _fmt(m["lifted_along"]), str(m["executed"])] for name, m in methods.items() if "disturbance_mm" in m]
+    rows = [[name, _fmt(m["success_all_slots"]), f"{m['disturbance_median_mm']:.1f}", f"{m['disturbance_p90_mm']:.1f}",
+             _fmt(m["disturbed"]), _fmt(m["lifted_along"]), str(m["executed"])]
+            for name, m in methods.items() if "disturbance_median_mm" in m]
     if not rows:
         return []
     return ["", "## The other objects on the table", "",
-            "Over the executed grasps: how far the farthest-moved other object went (mean, mm), the share of grasps "
-            f"that moved one at least {DISTURBED * 1000:.0f} mm and the share that lifted one along.", "",
-            *_table(["method", "Suc.", "farthest moved (mm)", f"moved one >= {DISTURBED * 1000:.0f} mm",
-                     "lifted one along", "executed"], rows)]
+            "Over the executed grasps: how far the farthest-moved other object went (mm: the median and the 90th "
+            "percentile; an object knocked off the twin's table falls on for the rest of the trial, so a mean would "
+            f"count metres of fall), the share of grasps that moved one at least {DISTURBED * 1000:.0f} mm and the "
+            "share that lifted one along.", "",
+            *_table(["method", "Suc.", "farthest moved, median (mm)", "90th percentile (mm)",
+                     f"moved one >= {DISTURBED * 1000:.0f} mm", "lifted one along", "executed"], rows)]
 
 
 def _target_table(methods: dict) -> list[str]:
