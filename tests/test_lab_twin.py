@@ -15,6 +15,7 @@ from sim.lab.controller import HOME_Q_WIRE
 from sim.lab.kinematic import Trapezoid, pose_matrix, pose_vector
 from sim.lab.robotiq import CLOSED_REGISTER, OBJ_AT_POSITION, OBJ_MOVING, OBJ_STOPPED_CLOSING, OPEN_REGISTER
 from sim.lab.twin import CAMERA_SERIALS, TwinScene
+from sim.lab.twin_arm import END_DEVIATION, PATH_DEVIATION
 from sim.robot import HOME_Q, T_FLANGE_GRIPPER
 
 #: The gripper pointing down, closing along the world x axis.
@@ -122,6 +123,29 @@ def test_an_arm_blocked_on_its_path_is_a_protective_stop(mug):
     assert arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ")
     assert "wrist" in arm.stop_reason and "on another object" in arm.stop_reason
     assert abs(arm.actual_q()[0] - target[0]) > 0.4  # halted at the post, far from the target
+
+
+def test_an_arm_held_short_of_its_end_is_a_protective_stop(mug):
+    """Blocked near the end of a motion (within `PATH_DEVIATION` of its path), the arm is stopped once the settling
+    time runs out, instead of the motion ending short of its target as if done."""
+    arm, client, robot = mug.arm, mug.cell.world.client, mug.cell.robot
+    low, high = (np.array(corner) for corner in client.getAABB(robot.body, robot.arm_joints[4]))  # wrist 2
+    wrist = (low + high) / 2
+    radius = np.linalg.norm(wrist[:2])
+    sideways = np.array([-wrist[1], wrist[0], 0.0]) / radius
+    gap = 0.005 + 0.5 * max(high - low)  # 5 mm from the wrist's box
+    post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[0.03, 0.03, 0.1])
+    for side in (1.0, -1.0):
+        client.createMultiBody(0.0, post, basePosition=(wrist + side * (gap + 0.03) * sideways).tolist())
+    mug.advance(0.1)
+    turn = 0.02 / radius  # 20 mm at the wrist: blocked after about 5, some 0.04 rad short of the end
+    target = np.array(arm.actual_q()) + np.array([turn, 0.0, 0.0, 0.0, 0.0, 0.0])
+    arm.move_joints(target, 0.5, 1.0)
+    run(mug)
+    assert arm.safety_status == "protective_stop", "the arm stopped short and its motion ended as if done"
+    assert arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ") and "wrist" in arm.stop_reason
+    short = float(arm.stop_reason.split("shoulder_pan_joint ")[1].split(" rad")[0])
+    assert END_DEVIATION < short < PATH_DEVIATION  # caught at the end, not on the way
 
 
 def test_pressing_down_on_another_object_of_the_scene_is_a_protective_stop():

@@ -8,7 +8,8 @@ have been rendered). The arm halts where it is on a safety stop: one the control
 protective stop of its own when, during a motion, a link of the arm (upper arm to wrist) touches the table, the
 robot presses on the table (directly or through the object) and on the other objects of a scene with more than
 `PROTECTIVE_FORCE` in all for `PROTECTIVE_STEPS` physics steps, or a joint falls more than `PATH_DEVIATION` behind
-its path for as many steps (something blocks the arm: e.g. the forearm on the object it carries). Brushing another
+its path for as many steps or stays `END_DEVIATION` short of its end (something blocks the arm: e.g. the forearm
+on the object it carries). Brushing another
 object aside stops nothing: a real arm feels the force it takes, not the touch. Assumption, not checked against a
 UR: its collision detection (joint torques against the model; "position deviates from path") stops a blocked arm
 at about that deviation. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
@@ -45,6 +46,9 @@ PROTECTIVE_STEPS = 3
 #: 0.004 rad through the emulated cell's grasps (twin UR5, 125 Hz references); an arm whose forearm pressed on the
 #: bottle it carried trailed by 0.26 rad and its motion ended 60 mm short.
 PATH_DEVIATION = 0.05
+#: How far (rad) a joint may still be from the motion's end when `SETTLE_TIME` runs out: an arm held this far short
+#: (a block met near the end, under `PATH_DEVIATION`) is stopped too; a free one settles within `SETTLED_ERROR`.
+END_DEVIATION = 0.01
 #: A motion has ended once every joint is this close (rad) to its end and slower than `SETTLED_SPEED` (rad/s), or
 #: `SETTLE_TIME` (s) after its reference came to rest.
 SETTLED_ERROR = 1e-3
@@ -215,10 +219,12 @@ class TwinArm:
 
     def _deviation(self, robot: UR5Arm, reference: KinematicArm, table: int, obj: int) -> str:
         """Why the controller would call the arm blocked: a joint more than `PATH_DEVIATION` from its path (the
-        `reference`) for `PROTECTIVE_STEPS` steps, named with what the arm's links touch; "" otherwise."""
+        `reference`) for `PROTECTIVE_STEPS` steps, or more than `END_DEVIATION` from the end of a motion that this
+        step ended unsettled, named with what the arm's links touch; "" otherwise."""
         error = np.abs(self._q - np.asarray(reference.q))
+        ended_short = self._reference is None and error.max() > END_DEVIATION  # the settling time ran out this step
         self._deviating = self._deviating + 1 if error.max() > PATH_DEVIATION else 0
-        if self._deviating < PROTECTIVE_STEPS:
+        if self._deviating < PROTECTIVE_STEPS and not ended_short:
             return ""
         self._deviating = 0
         c = robot.world.client
