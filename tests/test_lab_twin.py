@@ -104,47 +104,47 @@ def test_pressing_into_the_table_is_a_protective_stop(mug):
     assert not arm.is_moving()  # a stopped arm starts nothing
 
 
+def posts_beside_the_wrist(scene: TwinScene, clearance: float) -> float:
+    """Two fixed posts `clearance` (m) from wrist 2's bounding box, on either side of the way a turn of the base moves
+    it (whichever way it turns, the wrist meets one); the wrist's distance from the base axis."""
+    client, robot = scene.cell.world.client, scene.cell.robot
+    low, high = (np.array(corner) for corner in client.getAABB(robot.body, robot.arm_joints[4]))
+    wrist, half_post = (low + high) / 2, 0.03
+    radius = float(np.linalg.norm(wrist[:2]))
+    sideways = np.array([-wrist[1], wrist[0], 0.0]) / radius
+    post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[half_post, half_post, 0.1])
+    for side in (1.0, -1.0):
+        offset = clearance + 0.5 * float(max(high - low)) + half_post
+        client.createMultiBody(0.0, post, basePosition=(wrist + side * offset * sideways).tolist())
+    scene.advance(0.1)
+    assert scene.arm.safety_status == "normal"
+    return radius
+
+
 def test_an_arm_blocked_on_its_path_is_a_protective_stop(mug):
-    """A joint held back by something in the arm's way (here a fixed post beside the wrist; in a run, the forearm
-    on the bottle it carried) ends the motion in a protective stop, not at rest short of its target."""
-    arm, client, robot = mug.arm, mug.cell.world.client, mug.cell.robot
-    low, high = (np.array(corner) for corner in client.getAABB(robot.body, robot.arm_joints[4]))  # wrist 2
-    wrist = (low + high) / 2
-    sideways = np.array([-wrist[1], wrist[0], 0.0]) / np.linalg.norm(wrist[:2])  # where a base turn moves it
-    post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[0.03, 0.03, 0.1])
-    for side in (1.0, -1.0):  # a post on either side, 7 cm clear: whichever way the base turns, the wrist meets one
-        client.createMultiBody(0.0, post, basePosition=(wrist + side * 0.15 * sideways).tolist())
-    mug.advance(0.1)
-    assert arm.safety_status == "normal"
-    target = np.array(arm.actual_q()) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0])
-    arm.move_joints(target, 0.5, 1.0)
+    """A joint held back by something in the arm's way (here a post beside the wrist; in a run, the forearm on the
+    bottle it carried) ends the motion in a protective stop, not at rest short of its target."""
+    posts_beside_the_wrist(mug, 0.07)
+    target = np.array(mug.arm.actual_q()) + np.array([0.8, 0.0, 0.0, 0.0, 0.0, 0.0])
+    mug.arm.move_joints(target, 0.5, 1.0)
     run(mug)
-    assert arm.safety_status == "protective_stop", "the arm was held back and its motion ended as if done"
-    assert arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ")
-    assert "wrist" in arm.stop_reason and "on another object" in arm.stop_reason
-    assert abs(arm.actual_q()[0] - target[0]) > 0.4  # halted at the post, far from the target
+    assert mug.arm.safety_status == "protective_stop", "the arm was held back and its motion ended as if done"
+    assert mug.arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ")
+    assert "wrist" in mug.arm.stop_reason and "on another object" in mug.arm.stop_reason
+    assert abs(mug.arm.actual_q()[0] - target[0]) > 0.4  # halted at the post, far from the target
 
 
 def test_an_arm_held_short_of_its_end_is_a_protective_stop(mug):
     """Blocked near the end of a motion (within `PATH_DEVIATION` of its path), the arm is stopped once the settling
     time runs out, instead of the motion ending short of its target as if done."""
-    arm, client, robot = mug.arm, mug.cell.world.client, mug.cell.robot
-    low, high = (np.array(corner) for corner in client.getAABB(robot.body, robot.arm_joints[4]))  # wrist 2
-    wrist = (low + high) / 2
-    radius = np.linalg.norm(wrist[:2])
-    sideways = np.array([-wrist[1], wrist[0], 0.0]) / radius
-    gap = 0.005 + 0.5 * max(high - low)  # 5 mm from the wrist's box
-    post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[0.03, 0.03, 0.1])
-    for side in (1.0, -1.0):
-        client.createMultiBody(0.0, post, basePosition=(wrist + side * (gap + 0.03) * sideways).tolist())
-    mug.advance(0.1)
-    turn = 0.02 / radius  # 20 mm at the wrist: blocked after about 5, some 0.04 rad short of the end
-    target = np.array(arm.actual_q()) + np.array([turn, 0.0, 0.0, 0.0, 0.0, 0.0])
-    arm.move_joints(target, 0.5, 1.0)
+    radius = posts_beside_the_wrist(mug, 0.005)
+    target = np.array(mug.arm.actual_q()) + np.array([0.02 / radius, 0.0, 0.0, 0.0, 0.0, 0.0])  # 20 mm at the wrist
+    mug.arm.move_joints(target, 0.5, 1.0)
     run(mug)
-    assert arm.safety_status == "protective_stop", "the arm stopped short and its motion ended as if done"
-    assert arm.stop_reason.startswith("position deviates from path: shoulder_pan_joint ") and "wrist" in arm.stop_reason
-    short = float(arm.stop_reason.split("shoulder_pan_joint ")[1].split(" rad")[0])
+    assert mug.arm.safety_status == "protective_stop", "the arm stopped short and its motion ended as if done"
+    reason = mug.arm.stop_reason
+    assert reason.startswith("position deviates from path: shoulder_pan_joint ") and "wrist" in reason
+    short = float(reason.split("shoulder_pan_joint ")[1].split(" rad")[0])
     assert END_DEVIATION < short < PATH_DEVIATION  # caught at the end, not on the way
 
 

@@ -9,10 +9,10 @@ protective stop of its own when, during a motion, a link of the arm (upper arm t
 robot presses on the table (directly or through the object) and on the other objects of a scene with more than
 `PROTECTIVE_FORCE` in all for `PROTECTIVE_STEPS` physics steps, or a joint falls more than `PATH_DEVIATION` behind
 its path for as many steps or stays `END_DEVIATION` short of its end (something blocks the arm: e.g. the forearm
-on the object it carries). Brushing another
-object aside stops nothing: a real arm feels the force it takes, not the touch. Assumption, not checked against a
-UR: its collision detection (joint torques against the model; "position deviates from path") stops a blocked arm
-at about that deviation. The scene (sim/lab/twin.py) steps it and holds its lock around every call.
+on the object it carries). Brushing another object aside stops nothing: a real arm feels the force it takes, not
+the touch. Assumption, not checked against a UR: its collision detection (joint torques against the model;
+"position deviates from path") stops a blocked arm at about those deviations. The scene (sim/lab/twin.py) steps it
+and holds its lock around every call.
 """
 
 from __future__ import annotations
