@@ -168,11 +168,16 @@ class TwinArm:
         self._q = np.array([s[0] for s in states])
         self._qd = np.array([s[1] for s in states])
         reference = self._reference
-        if reference is not None and not reference.is_moving():
+        if reference is None:
+            self._settling = 0.0
+            return
+        error = np.abs(self._q - np.asarray(reference.q))  # each joint's distance from its path
+        timed_out = False  # the motion ends this step without having settled
+        if not reference.is_moving():
             self._settling += self.scene.time_step
-            settled = (np.abs(self._q - np.asarray(reference.q)).max() < SETTLED_ERROR
-                       and np.abs(self._qd).max() < SETTLED_SPEED)
-            if settled or self._settling > SETTLE_TIME:
+            settled = error.max() < SETTLED_ERROR and np.abs(self._qd).max() < SETTLED_SPEED
+            timed_out = not settled and self._settling > SETTLE_TIME
+            if settled or timed_out:
                 self._reference = None
                 if self.scene.render_at_rest:  # finished once the cameras have seen where it ended
                     self.scene.render_soon(self._rendered)
@@ -180,8 +185,9 @@ class TwinArm:
                     self._moving = False
         else:
             self._settling = 0.0
-        if self.safety_status == "normal" and reference is not None:  # the controller watches its own motions
-            reason = self._deviation(robot, reference, table, obj) or self._collision(robot, table, obj, weight, others)
+        if self.safety_status == "normal":  # the controller watches its own motions
+            reason = (self._deviation(robot, error, timed_out, table, obj)
+                      or self._collision(robot, table, obj, weight, others))
             if reason:
                 self._protective_stop(robot, reason)
 
@@ -217,12 +223,11 @@ class TwinArm:
             return f"the tool presses {press + on_others:.0f} N {where}, above the {PROTECTIVE_FORCE:.0f} N limit"
         return ""
 
-    def _deviation(self, robot: UR5Arm, reference: KinematicArm, table: int, obj: int) -> str:
-        """Why the controller would call the arm blocked: a joint more than `PATH_DEVIATION` from its path (the
-        `reference`) for `PROTECTIVE_STEPS` steps, or more than `END_DEVIATION` from the end of a motion that this
-        step ended unsettled, named with what the arm's links touch; "" otherwise."""
-        error = np.abs(self._q - np.asarray(reference.q))
-        ended_short = self._reference is None and error.max() > END_DEVIATION  # the settling time ran out this step
+    def _deviation(self, robot: UR5Arm, error: np.ndarray, timed_out: bool, table: int, obj: int) -> str:
+        """Why the controller would call the arm blocked: a joint `error` (rad, from its path) above
+        `PATH_DEVIATION` for `PROTECTIVE_STEPS` steps, or above `END_DEVIATION` when the motion `timed_out` unsettled
+        this step, named with what the arm's links touch; "" otherwise."""
+        ended_short = timed_out and error.max() > END_DEVIATION
         self._deviating = self._deviating + 1 if error.max() > PATH_DEVIATION else 0
         if self._deviating < PROTECTIVE_STEPS and not ended_short:
             return ""
