@@ -11,8 +11,8 @@ does, the part's geometry names why, in one sentence with measured numbers, the 
 1. the part has no face (nothing labelled as it);
 2. candidates touch it, but their pads press on it less than `min_share`;
 3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
-   `pinch_min_band`);
-4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
+   `min_pad_band`);
+4. it lies flat, raised but thin: nowhere does a pinch's pad find `min_pad_band` of it above the fingertips
    (a blade resting on its handle: the vertical chords down through it, `tallest_side`);
 5. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
    the widest contact distance the hand closes on (`Hand.stroke` - `AntipodalConfig.width_margin`);
@@ -25,7 +25,7 @@ candidate.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import trimesh
@@ -62,17 +62,19 @@ def judge_requests(
     for j, k in enumerate(requests):
         local[labels == k] = j
     best = select_per_prompt(grasps, mesh, local, len(requests), top_k=1, footprint=footprint)
-    surface = replace(footprint, margin=0.0).on(mesh)  # the pads themselves, without the ranking's safety margin
+    surface = footprint.on(mesh)  # measured under the pads themselves (bare), without the ranking's safety margin
     parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
         is_part = (local == j).astype(np.float64)[:, None]
-        if len(best[j]) and (surface.pad_means(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
+        pressed = surface.pad_means(grasps.subset(best[j]), is_part, bare=True) if len(best[j]) else None
+        if pressed is not None and (pressed >= footprint.min_share).all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = np.flatnonzero(parts == j)
-        share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
+        share = (surface.pad_means(grasps.subset(on_part), is_part, bare=True)[:, :, 0].min(axis=1)
+                 if len(on_part) else None)
         if share is not None and share.max() >= footprint.min_share:  # a candidate ranked lower holds it
             judged[k] = Feasibility(True)
         else:
@@ -94,16 +96,16 @@ def _reason(
                 f"they need {100 * footprint.min_share:.0f} %")
     vertices = mesh.vertices[np.unique(mesh.faces[faces])]
     height = float((vertices @ table_plane[:3] + table_plane[3]).max())
-    pinch = config.pinch_table_clearance + config.pinch_min_band
+    pinch = config.pinch_table_clearance + config.min_pad_band
     if height < pinch:
         return (f"{name}: stands at most {1000 * height:.1f} mm above the table; a fingertip pinch needs "
                 f"{1000 * pinch:.1f} mm (fingertips {1000 * config.pinch_table_clearance:.1f} mm above the table, "
-                f"{1000 * config.pinch_min_band:.1f} mm of pad on the part)")
+                f"{1000 * config.min_pad_band:.1f} mm of pad on the part)")
     side = tallest_side(mesh, faces, table_plane, config.pinch_table_clearance)
-    if side < config.pinch_min_band:
+    if side < config.min_pad_band:
         return (f"{name}: lies flat, at most {1000 * side:.1f} mm of it above a pinch's fingertips "
                 f"({1000 * config.pinch_table_clearance:.1f} mm above the table) wherever a pad would touch its "
-                f"side; a fingertip pinch needs {1000 * config.pinch_min_band:.1f} mm of pad on the part")
+                f"side; a fingertip pinch needs {1000 * config.min_pad_band:.1f} mm of pad on the part")
     widest = hand.stroke - config.width_margin
     section = narrowest_section(mesh, faces, config)
     if section is not None and section > widest:
