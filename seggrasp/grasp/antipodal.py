@@ -82,7 +82,7 @@ class AntipodalConfig:
     # edge does not hold), measured from the surface points within `pad_band_tolerance` of each pad's first touch;
     # 0.5 mm, where 3 mm refused pinches on knife blades, scissor blades and eyeglass rims that the twin lifts
     # (docs/results/pinch-band-seeds0-4.md); first for pinches alone, for every grasp since
-    # docs/results/pad-band-all-grasps-seeds0-4.md
+    # docs/results/pad-band-proudest-surface-seeds0-2.md
     min_pad_band: float = 0.0005
     pad_band_tolerance: float = 0.0015
     pad_half_width: float = ROBOTIQ_2F85.pad_half_width
