@@ -7,7 +7,7 @@ For every twin object (default: the whole twin), seed and robot system, the cell
 `python -m sim.evaluate --embodiment arm --robots ROBOT` builds them (`sim.evaluate.runner.subject_of`, the run's
 scene seed, the hand's sampler at the hand's grip force) and every prompt is judged on the oracle's plan
 (`Episode.feasibility`: the true part). For each request judged infeasible, the best grasp of a relaxed sampler
-(`relaxed_config`: a grasp may touch the surface over `RELAXED_PAD_BAND` of its pads, the contact distance may come
+(`relaxed_config`: a pinch may touch the part over `RELAXED_PINCH_BAND` of its pads, the contact distance may come
 within `RELAXED_WIDTH_MARGIN` of the stroke, the fingers as close to the table as the cell lets them, a sweep's pads
 may meet surface up to `RELAXED_FACING_DEG` off, pinches may tilt `RELAXED_PINCH_TILT_DEG`, twice the surface
 samples) whose two planned contacts lie on the part - the pads' footprint share is ignored - is executed anyway
@@ -50,7 +50,7 @@ DEFAULT_OUT = Path("docs/results/infeasible-requests.md")
 #: The check: lifted by the part in fewer than this share of the requests judged infeasible.
 THRESHOLD = 0.05
 #: The relaxed sampler (the strict defaults: `AntipodalConfig`).
-RELAXED_PAD_BAND = 0.0  # m of surface along the pads a grasp needs (strict: min_pad_band, 0.5 mm)
+RELAXED_PINCH_BAND = 0.0  # m of pad on the part's side a pinch needs (strict: pinch_min_band, 0.5 mm)
 RELAXED_WIDTH_MARGIN = 0.001  # m below the stroke the contact distance must stay (strict: width_margin, 5 mm)
 RELAXED_FACING_DEG = 30.0  # a level or envelope pose's pads may meet surface this far off (strict: 18 deg)
 RELAXED_PINCH_TILT_DEG = 20.0  # a pinch may come this far off straight down (strict: 10 deg)
@@ -112,13 +112,13 @@ class Request:
             broken.append(f"pads' share {100 * self.share:.0f} % < {100 * footprint_share:.0f} %")
         if self.width is not None and self.width > hand.stroke - strict.width_margin:
             broken.append(f"width {1000 * self.width:.1f} mm > {1000 * (hand.stroke - strict.width_margin):.0f} mm")
-        if self.band is not None and self.band < strict.min_pad_band:
-            broken.append(f"pad band {1000 * self.band:.1f} mm < {1000 * strict.min_pad_band:.1f} mm")
         if self.tip_clearance is not None and self.tip_clearance < strict.table_clearance:
             # a pose as low as a pinch: the pinch's limits hold for it
             if self.tip_clearance < strict.pinch_table_clearance:
                 broken.append(f"fingertips {1000 * self.tip_clearance:.1f} mm < "
                               f"{1000 * strict.pinch_table_clearance:.1f} mm above the table")
+            if self.band is not None and self.band < strict.pinch_min_band:
+                broken.append(f"pad band {1000 * self.band:.1f} mm < {1000 * strict.pinch_min_band:.1f} mm")
             if self.tilt_deg is not None and self.tilt_deg > strict.pinch_max_tilt_deg:
                 broken.append(f"pinch tilt {self.tilt_deg:.0f} deg > {strict.pinch_max_tilt_deg:g} deg")
         return broken
@@ -142,7 +142,7 @@ def relaxed_config(hand: Hand, grip_force: float, clearance: str = "cell") -> An
     if clearance == "sampler":
         tables = {"pinch_table_clearance": strict.pinch_table_clearance, "table_clearance": strict.table_clearance}
     return AntipodalConfig.for_hand(
-        hand, grip_force=grip_force, min_pad_band=RELAXED_PAD_BAND, width_margin=RELAXED_WIDTH_MARGIN,
+        hand, grip_force=grip_force, pinch_min_band=RELAXED_PINCH_BAND, width_margin=RELAXED_WIDTH_MARGIN,
         level_facing_deg=RELAXED_FACING_DEG, pinch_max_tilt_deg=RELAXED_PINCH_TILT_DEG,
         n_surface_samples=RELAXED_SAMPLES * strict.n_surface_samples, **tables)
 
@@ -205,7 +205,7 @@ class Diagnosis:
         request.share = float(self.surface.pad_means(grasp, (labels == k).astype(np.float64)[:, None])[0, :, 0].min())
         opening = hand.pre_grasp_opening(grasp.widths)
         request.band = float(pad_bands(grasp.poses, opening, self.cloud, hand.pad_half_width, hand.pad_half_length,
-                                       AntipodalConfig().pad_band_tolerance)[0])
+                                       AntipodalConfig().pinch_band_tolerance)[0])
         pose = grasp.poses[0]
         corners = box_corners(hand.boxes(float(opening[0]))) @ pose[:3, :3].T + pose[:3, 3]
         request.tip_clearance = float((corners @ self.plane[:3] + self.plane[3]).min())
@@ -328,8 +328,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
         "candidates). For each request judged infeasible, the best grasp of a relaxed sampler with both planned "
         "contacts on the part (the pads' footprint share ignored) is executed anyway from a reset: the first of "
         f"its best {MIN_REACH_DEPTH} the cell would execute, scored as a benchmark slot (lifted and the pads touched "
-        "mostly the part). The relaxed sampler, against the strict one: a grasp needs "
-        f"{1000 * config.min_pad_band:.1f} mm of surface along its pads (strict {1000 * strict.min_pad_band:.1f} mm); "
+        "mostly the part). The relaxed sampler, against the strict one: a pinch needs "
+        f"{1000 * config.pinch_min_band:.1f} mm of pad on the part (strict {1000 * strict.pinch_min_band:.1f} mm); "
         f"the contact distance may come within {1000 * config.width_margin:.0f} mm of the stroke (strict "
         f"{1000 * strict.width_margin:.0f} mm); fingertips of a pinch {1000 * config.pinch_table_clearance:.1f} mm "
         f"above the table (strict: the hand's, {pinches}) and the hand of an ordinary grasp "
@@ -398,7 +398,7 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
         lines += [("Each executed relaxed grasp that lifted the object by the part, measured against the strict "
                    "judgement: the smaller share of the part under its pads (the footprint's; the judgement needs "
                    f"{100 * footprint.min_share:.0f} %), how far along the pads the surface they close on reaches "
-                   "(a grasp needs the strict pad band), the fingers' lowest point above the table at the "
+                   "(a pinch needs the strict pinch band), the fingers' lowest point above the table at the "
                    "pre-grasp opening, and whether the strict sampler had a grasp on the part within "
                    f"{1000 * STRICT_MATCH[0]:.0f} mm and {STRICT_MATCH[1]:g} deg of it (then only the pads' share "
                    "kept it from the judgement)."), "",

@@ -11,7 +11,7 @@ panels show the section (the part in colour, the rest grey) with the sampler's b
 
 - an ordinary grasp: fingertips `table_clearance` above the table, contact at the deepest `contact_depths` entry;
 - a fingertip pinch: fingertips `pinch_table_clearance` above the table, the pads touching the part's side over
-  at least `min_pad_band`.
+  at least `pinch_min_band`.
 
 The fingers are drawn at the part's extent in the section. The numbers (part top, section height, the two
 lowest contact heights) are printed as a table and the pictures written to --out, one PNG per part.
@@ -44,10 +44,10 @@ MM = 1000.0
 
 def lowest_contacts(config: AntipodalConfig, gripper: Hand) -> tuple[float, float, float]:
     """Heights above the table (m) of the lowest ordinary contact, of the lowest pinch contact, and of the top of
-    the side a pinch needs (fingertips + `min_pad_band`), for a straight-down approach."""
+    the side a pinch needs (fingertips + `pinch_min_band`), for a straight-down approach."""
     ordinary = config.table_clearance + gripper.tip_beyond_origin - max(config.contact_depths)
     pinch = config.pinch_table_clearance + gripper.tip_beyond_origin - max(config.pinch_contact_depths)
-    return ordinary, pinch, config.pinch_table_clearance + config.min_pad_band
+    return ordinary, pinch, config.pinch_table_clearance + config.pinch_min_band
 
 
 def part_section(mesh: trimesh.Trimesh, part_faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -18,7 +18,7 @@ def test_the_lowest_contacts_follow_the_sampler_settings():
     assert pinch == pytest.approx(0.0015 + 0.020 - 0.0165)
     # a pinch's fingertips 1.5 mm up, the pads on the part's side over the 0.5 mm band above them
     assert band_top == pytest.approx(0.0015 + 0.0005)
-    narrower = AntipodalConfig(min_pad_band=0.003)
+    narrower = AntipodalConfig(pinch_min_band=0.003)
     assert low_parts.lowest_contacts(narrower, ROBOTIQ_2F85)[2] == pytest.approx(0.0045)
     deeper = AntipodalConfig(table_clearance=0.002)
     assert low_parts.lowest_contacts(deeper, ROBOTIQ_2F85)[0] == pytest.approx(0.010)

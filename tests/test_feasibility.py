@@ -50,7 +50,7 @@ def plate() -> tuple[trimesh.Trimesh, np.ndarray]:
 def test_a_thin_plate_lying_flat_is_infeasible_and_the_reason_names_its_height_and_the_pinch(plate) -> None:
     verdict = judge(*plate, ROBOTIQ_2F85)
     config = AntipodalConfig.for_hand(ROBOTIQ_2F85)
-    pinch = 1000 * (config.pinch_table_clearance + config.min_pad_band)
+    pinch = 1000 * (config.pinch_table_clearance + config.pinch_min_band)
     assert not verdict.feasible
     assert verdict.reason.startswith("part: stands at most 1.5 mm above the table")
     assert f"a fingertip pinch needs {pinch:.1f} mm" in verdict.reason

@@ -16,9 +16,8 @@
    below an optional table plane. A pose coming straight down onto the table (within `pinch_max_tilt_deg`) that
    finds no such depth is tried once more as a fingertip pinch (`pinch_contact_depths`, the fingertips
    `pinch_table_clearance` above the table): how a 2F-85 picks a part lying flat whose sides are lower than the
-   pads reach with the normal margins (toothbrush handles, screwdriver shafts, eyeglass temples). Any pose, pinch
-   or not, is kept only where both pads touch the surface over `min_pad_band` of their length: a pad that meets
-   only an edge or a corner (a kettle's shoulder under a tilted pad) does not hold.
+   pads reach with the normal margins (toothbrush handles, screwdriver shafts, eyeglass temples). A pinch is kept
+   only where both pads touch the part over `pinch_min_band` of their length.
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
    between them. A level or envelope pose is kept only if the surface there faces the pads (`level_facing_deg`);
@@ -78,13 +77,12 @@ class AntipodalConfig:
     pinch_contact_depths: tuple[float, ...] = ROBOTIQ_2F85.pinch_contact_depths
     pinch_table_clearance: float = ROBOTIQ_2F85.pinch_table_clearance
     pinch_max_tilt_deg: float = 10.0
-    # every grasp's pads must touch the surface over at least this much of their length (a pad that only grazes an
-    # edge does not hold), measured from the surface points within `pad_band_tolerance` of each pad's first touch;
-    # 0.5 mm, where 3 mm refused pinches on knife blades, scissor blades and eyeglass rims that the twin lifts
-    # (docs/results/pinch-band-seeds0-4.md); first for pinches alone, for every grasp since
-    # docs/results/pad-band-proudest-surface-seeds0-2.md
-    min_pad_band: float = 0.0005
-    pad_band_tolerance: float = 0.0015
+    # and the pads must touch the part's side over at least this much of their length (a pinch that only grazes
+    # an edge does not hold), measured from the surface points within `pinch_band_tolerance` of each pad's first
+    # touch; 0.5 mm, where 3 mm refused pinches on knife blades, scissor blades and eyeglass rims that the twin
+    # lifts (docs/results/pinch-band-seeds0-4.md)
+    pinch_min_band: float = 0.0005
+    pinch_band_tolerance: float = 0.0015
     pad_half_width: float = ROBOTIQ_2F85.pad_half_width
     pad_half_length: float = ROBOTIQ_2F85.pad_half_length
     footprint_tolerance: float = 0.001  # the footprint must be this much wider on a side to move the contacts
@@ -120,8 +118,8 @@ class AntipodalConfig:
             depths = getattr(self, name)
             if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
                 raise ValueError(f"{name} must lie on the pad (|d| < {self.pad_half_length}), got {depths}")
-        if min(self.pinch_table_clearance, self.min_pad_band, self.pad_band_tolerance) < 0:
-            raise ValueError("pinch_table_clearance, min_pad_band and pad_band_tolerance must not be negative")
+        if min(self.pinch_table_clearance, self.pinch_min_band, self.pinch_band_tolerance) < 0:
+            raise ValueError("pinch_table_clearance, pinch_min_band and pinch_band_tolerance must not be negative")
         if self.envelope_centres < 0 or self.envelope_directions < 1:
             raise ValueError("envelope_centres must not be negative and envelope_directions must be at least 1")
         if not 0 <= self.pinch_max_tilt_deg <= 90:
@@ -230,22 +228,22 @@ class AntipodalSampler:
         for start in range(0, len(envelope_index), COLLISION_CHUNK):
             chunk = envelope_index[start : start + COLLISION_CHUNK]
             contacts[chunk] = pressed_centres(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
-                                            cfg.pad_band_tolerance)
+                                            cfg.pinch_band_tolerance)
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
             1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)
-        # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; both
-        # pads must touch the surface over `min_pad_band` of their length
+        # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; a pinch
+        # must touch the part over `pinch_min_band` of its pads
         facing = alignment >= np.cos(np.deg2rad(cfg.level_facing_deg))
         fits = (widths <= self.gripper.stroke - cfg.width_margin) & (facing | ~from_sweep)
-        kept = np.flatnonzero(fits)
-        if len(kept):
+        pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
+        if len(pinch):
             bands = np.concatenate([
                 pad_bands(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
-                           cfg.pad_band_tolerance)
-                for chunk in np.array_split(kept, -(-len(kept) // COLLISION_CHUNK))
+                           cfg.pinch_band_tolerance)
+                for chunk in np.array_split(pinch, -(-len(pinch) // COLLISION_CHUNK))
             ])
-            fits[kept] = bands >= cfg.min_pad_band
+            fits[pinch] = bands >= cfg.pinch_min_band
         poses, contacts, widths = poses[fits], contacts[fits], widths[fits]
         contact_depth, pose_antipodality = contact_depth[fits], pose_antipodality[fits]
         if not len(poses):

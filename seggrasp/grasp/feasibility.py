@@ -11,8 +11,8 @@ does, the part's geometry names why, in one sentence with measured numbers, the 
 1. the part has no face (nothing labelled as it);
 2. candidates touch it, but their pads press on it less than `min_share`;
 3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
-   `min_pad_band`);
-4. it lies flat, raised but thin: nowhere does a pinch's pad find `min_pad_band` of it above the fingertips
+   `pinch_min_band`);
+4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
    (a blade resting on its handle: the vertical chords down through it, `tallest_side`);
 5. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
    the widest contact distance the hand closes on (`Hand.stroke` - `AntipodalConfig.width_margin`);
@@ -96,16 +96,16 @@ def _reason(
                 f"they need {100 * footprint.min_share:.0f} %")
     vertices = mesh.vertices[np.unique(mesh.faces[faces])]
     height = float((vertices @ table_plane[:3] + table_plane[3]).max())
-    pinch = config.pinch_table_clearance + config.min_pad_band
+    pinch = config.pinch_table_clearance + config.pinch_min_band
     if height < pinch:
         return (f"{name}: stands at most {1000 * height:.1f} mm above the table; a fingertip pinch needs "
                 f"{1000 * pinch:.1f} mm (fingertips {1000 * config.pinch_table_clearance:.1f} mm above the table, "
-                f"{1000 * config.min_pad_band:.1f} mm of pad on the part)")
+                f"{1000 * config.pinch_min_band:.1f} mm of pad on the part)")
     side = tallest_side(mesh, faces, table_plane, config.pinch_table_clearance)
-    if side < config.min_pad_band:
+    if side < config.pinch_min_band:
         return (f"{name}: lies flat, at most {1000 * side:.1f} mm of it above a pinch's fingertips "
                 f"({1000 * config.pinch_table_clearance:.1f} mm above the table) wherever a pad would touch its "
-                f"side; a fingertip pinch needs {1000 * config.min_pad_band:.1f} mm of pad on the part")
+                f"side; a fingertip pinch needs {1000 * config.pinch_min_band:.1f} mm of pad on the part")
     widest = hand.stroke - config.width_margin
     section = narrowest_section(mesh, faces, config)
     if section is not None and section > widest:
