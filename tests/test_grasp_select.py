@@ -8,7 +8,6 @@ from seggrasp.grasp import AntipodalSampler, GraspSet
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
-from seggrasp.hands import ROBOTIQ_2F85
 
 
 @pytest.fixture(scope="module")
@@ -91,35 +90,6 @@ def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighb
     surface = PadFootprint().on(mesh)
     assert all(len(pad) == 0 for pads in surface.touched_faces(far) for pad in pads)
     np.testing.assert_allclose(surface.pad_means(far, (labels == 0).astype(float)[:, None])[:, :, 0], 1.0)
-
-
-def test_the_pads_press_on_the_proudest_surface_under_them() -> None:
-    # a toothbrush's 8.8 mm head beside its 10.4 mm neck; a grasp across the head whose 22 mm pads overlap the
-    # neck by 5 mm stops on the neck, 0.8 mm prouder on each side, and presses on nothing of the head
-    head = trimesh.creation.box((0.02, 0.0088, 0.01))
-    head.apply_translation([0.01, 0.0, 0.005])
-    neck = trimesh.creation.box((0.04, 0.0104, 0.01))
-    neck.apply_translation([-0.02, 0.0, 0.005])
-    mesh = trimesh.util.concatenate([head, neck])
-    labels = np.r_[np.ones(len(head.faces), dtype=np.int64), np.zeros(len(neck.faces), dtype=np.int64)]
-    pose = np.eye(4)
-    pose[:3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # closing along y, pads along x
-    pose[:3, 3] = [ROBOTIQ_2F85.pad_half_width - 0.005, 0.0, 0.005]
-    grasp = GraspSet(pose[None], [0.0088], [1.0], np.array([[[0.006, -0.0044, 0.005], [0.006, 0.0044, 0.005]]]))
-    assert assign_parts(grasp, mesh, labels).tolist() == [1]  # both contacts on the head
-    on_head = (labels == 1).astype(float)[:, None]
-    np.testing.assert_allclose(PadFootprint(margin=0.0).on(mesh).pad_means(grasp, on_head)[0, :, 0], 0.0)
-    # counting all surface within 2 mm of the first touch, the head would fill most of the pads
-    assert (PadFootprint(margin=0.0, tolerance=0.002).on(mesh).pad_means(grasp, on_head)[0, :, 0] > 0.5).all()
-    # a grasp scored lower whose pads end 1.5 mm short of the neck presses on the head (only the pads widened by
-    # the footprint's 3 mm margin reach the neck): it comes first
-    clear = pose.copy()
-    clear[0, 3] = ROBOTIQ_2F85.pad_half_width + 0.0015
-    both = GraspSet(np.stack([pose, clear]), [0.0088] * 2, [0.9, 0.5], np.repeat(grasp.contacts, 2, axis=0))
-    surface = PadFootprint().on(mesh)
-    assert (surface.pad_means(both, on_head, bare=True)[1, :, 0] == 1.0).all()
-    assert (surface.pad_means(both, on_head)[1, :, 0] < 0.5).all()
-    assert [c.tolist() for c in select_per_prompt(both, mesh, labels, 2, footprint=PadFootprint())] == [[], [1, 0]]
 
 
 @pytest.mark.slow

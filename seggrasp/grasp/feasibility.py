@@ -25,7 +25,7 @@ candidate.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import trimesh
@@ -62,19 +62,17 @@ def judge_requests(
     for j, k in enumerate(requests):
         local[labels == k] = j
     best = select_per_prompt(grasps, mesh, local, len(requests), top_k=1, footprint=footprint)
-    surface = footprint.on(mesh)  # measured under the pads themselves (bare), without the ranking's safety margin
+    surface = replace(footprint, margin=0.0).on(mesh)  # the pads themselves, without the ranking's safety margin
     parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
         is_part = (local == j).astype(np.float64)[:, None]
-        pressed = surface.pad_means(grasps.subset(best[j]), is_part, bare=True) if len(best[j]) else None
-        if pressed is not None and (pressed >= footprint.min_share).all():
+        if len(best[j]) and (surface.pad_means(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = np.flatnonzero(parts == j)
-        share = (surface.pad_means(grasps.subset(on_part), is_part, bare=True)[:, :, 0].min(axis=1)
-                 if len(on_part) else None)
+        share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
         if share is not None and share.max() >= footprint.min_share:  # a candidate ranked lower holds it
             judged[k] = Feasibility(True)
         else:

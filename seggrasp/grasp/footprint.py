@@ -1,14 +1,12 @@
 """What lies under a grasp's pads: the faces nearest its contacts, and the surface each pad closes on.
 
-A grasp's two contact points say little about what its pads (`Hand.pad_half_width` x `pad_half_length`) will press
-on. `PadFootprint` finds, on a dense even sample of the mesh, the surface each pad touches when it closes from the
-pre-grasp opening: the points its sweep holds within `tolerance` of its first touch
-(`seggrasp.grasp.pads.pad_touches`; a rigid pad presses on the proudest surface it meets: a kids' toothbrush's neck,
-0.8 mm prouder than its head, takes the whole grip of pads that overlap both), with the pad widened by `margin` on
-every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge takes the grip
-once the pose is a little off or the object settles in the fingers (a wine glass held by its stem just under the
-bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value) over those
-points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
+A grasp's two contact points say little about what its pads (`Hand.pad_half_width` x `pad_half_length`) will press on. `PadFootprint` finds, on a
+dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
+its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.pads.pad_touches`), with the pad widened
+by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge
+takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
+just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
+over those points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
 """
 
 from __future__ import annotations
@@ -39,7 +37,7 @@ class PadFootprint:
     on the part the pads press on most, `seggrasp.truth.GroundTruth.touched_on_part`)."""
 
     margin: float = 0.003
-    tolerance: float = 0.0005
+    tolerance: float = 0.002
     point_spacing: float = 0.0015
     min_points: int = 2000
     max_points: int = 40000
@@ -68,14 +66,12 @@ class PadSurface:
         self.points, self.point_faces = trimesh.sample.sample_surface_even(mesh, count, seed=footprint.seed)
         self._tree = cKDTree(self.points)
 
-    def touched_faces(self, grasps: GraspSet, bare: bool = False) -> list[tuple[np.ndarray, np.ndarray]]:
+    def touched_faces(self, grasps: GraspSet) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per grasp, the mesh face of every sample point the -x pad and the +x pad close on (one entry per point,
-        so faces repeat in proportion to their area under the pad; empty where a pad touches nothing); `bare`: the
-        pads themselves, not widened by the footprint's `margin`."""
+        so faces repeat in proportion to their area under the pad; empty where a pad touches nothing)."""
         fp = self.footprint
-        margin = 0.0 if bare else fp.margin
-        half_width = fp.gripper.pad_half_width + margin
-        half_length = fp.gripper.pad_half_length + margin
+        half_width = fp.gripper.pad_half_width + fp.margin
+        half_length = fp.gripper.pad_half_length + fp.margin
         openings = fp.gripper.pre_grasp_opening(grasps.widths)
         reach = np.sqrt((0.5 * openings) ** 2 + half_width**2 + half_length**2)
         touched = []
@@ -89,14 +85,14 @@ class PadSurface:
             touched.append((self.point_faces[near[low_pad[0]]], self.point_faces[near[high_pad[0]]]))
         return touched
 
-    def pad_means(self, grasps: GraspSet, face_values: np.ndarray, bare: bool = False) -> np.ndarray:
+    def pad_means(self, grasps: GraspSet, face_values: np.ndarray) -> np.ndarray:
         """(N, 2, P) per grasp and pad the mean of `face_values` (F, P) over the surface the pad closes on (the
-        face nearest the contact where it closes on none of the sample points); `bare` as in `touched_faces`."""
+        face nearest the contact where it closes on none of the sample points)."""
         face_values = np.asarray(face_values, dtype=np.float64)
         if face_values.ndim != 2 or len(face_values) != len(self.mesh.faces):
             raise ValueError(f"need (F, P) face values for {len(self.mesh.faces)} faces, got {face_values.shape}")
         means = face_values[contact_faces(grasps, self.mesh)]  # (N, 2, P)
-        for i, pads in enumerate(self.touched_faces(grasps, bare)):
+        for i, pads in enumerate(self.touched_faces(grasps)):
             for pad, faces in enumerate(pads):
                 if len(faces):
                     means[i, pad] = face_values[faces].mean(axis=0)

@@ -1,13 +1,11 @@
 """Part assignment and per-prompt grasp selection.
 
-A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts and
-require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is never
-selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on the
-prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part, both the pads themselves
-and the pads widened by the footprint's margin, come first (`seggrasp.grasp.footprint`: two contacts on a wine
-glass's stem say nothing of the bowl under the pads' edge; and a widened pad may first touch a proud point of the
-part that the pad itself never reaches); the others fill the top-k only where too few do, so the check never leaves
-a request with fewer grasps.
+A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts
+and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
+never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
+the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part come first
+(`seggrasp.grasp.footprint`: two contacts on a wine glass's stem say nothing of the bowl under the pads' edge); the
+others fill the top-k only where too few do, so the check never leaves a request with fewer grasps.
 """
 
 from __future__ import annotations
@@ -54,9 +52,8 @@ def select_per_prompt(
     footprint: PadFootprint | None = None,
 ) -> list[np.ndarray]:
     """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none),
-    best first; with a `footprint`, first those whose pads each press on at least its `min_share` of faces labelled
-    k both as they are and widened by its margin, then those that do as they are only (a thin part fills no widened
-    pad), then the others."""
+    best first; with a `footprint`, those whose pads each press on at least its `min_share` of faces labelled k
+    first, then the others."""
     parts = assign_parts(grasps, mesh, face_labels)
     if footprint is None:
         return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]
@@ -65,16 +62,14 @@ def select_per_prompt(
     for k in range(n_prompts):
         ranked = select_on_part(grasps, parts, k, top_k=max(len(grasps), 1))
         is_part = (labels == k).astype(np.float64)[:, None]
-        tiers: tuple[list[int], list[int], list[int]] = ([], [], [])  # pressing widened and bare; bare only; others
+        pressing: list[int] = []
+        others: list[int] = []
         for start in range(0, len(ranked), FOOTPRINT_CHUNK):
-            if len(tiers[0]) >= top_k:
+            if len(pressing) >= top_k:
                 break
             block = ranked[start : start + FOOTPRINT_CHUNK]
-            subset = grasps.subset(block)
-            widened = (surface.pad_means(subset, is_part)[:, :, 0] >= footprint.min_share).all(axis=1)
-            bare = (surface.pad_means(subset, is_part, bare=True)[:, :, 0] >= footprint.min_share).all(axis=1)
-            tier = np.where(bare, np.where(widened, 0, 1), 2)
-            for t, members in enumerate(tiers):
-                members += block[tier == t].tolist()
-        chosen.append(np.asarray((tiers[0] + tiers[1] + tiers[2])[:top_k], dtype=np.int64))
+            on_part = (surface.pad_means(grasps.subset(block), is_part)[:, :, 0] >= footprint.min_share).all(axis=1)
+            pressing += block[on_part].tolist()
+            others += block[~on_part].tolist()
+        chosen.append(np.asarray((pressing + others)[:top_k], dtype=np.int64))
     return chosen
