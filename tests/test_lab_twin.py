@@ -113,8 +113,8 @@ def posts_beside_the_wrist(scene: TwinScene, clearance: float) -> float:
     radius = float(np.linalg.norm(wrist[:2]))
     sideways = np.array([-wrist[1], wrist[0], 0.0]) / radius
     post = client.createCollisionShape(client.GEOM_BOX, halfExtents=[half_post, half_post, 0.1])
+    offset = clearance + 0.5 * float(max(high - low)) + half_post
     for side in (1.0, -1.0):
-        offset = clearance + 0.5 * float(max(high - low)) + half_post
         client.createMultiBody(0.0, post, basePosition=(wrist + side * offset * sideways).tolist())
     scene.advance(0.1)
     assert scene.arm.safety_status == "normal"

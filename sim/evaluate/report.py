@@ -342,8 +342,8 @@ def _infeasible(methods: dict) -> list[str]:
 
 def _neighbours(methods: dict) -> list[str]:
     """A scene run's table of what each method's executed grasps did to the other objects."""
-    rows = [[name, _fmt(m["success_all_slots"]), f"{m['disturbance_median_mm']:.1f}", f"{m['disturbance_p90_mm']:.1f}",
-             _fmt(m["disturbed"]), _fmt(m["lifted_along"]), str(m["executed"])]
+    rows = [[name, _fmt(m["success_all_slots"]), f"{m['disturbance_median_mm']:.1f}",
+             f"{m['disturbance_p90_mm']:.1f}", _fmt(m["disturbed"]), _fmt(m["lifted_along"]), str(m["executed"])]
             for name, m in methods.items() if "disturbance_median_mm" in m]
     if not rows:
         return []
