@@ -178,7 +178,8 @@ class RealSenseCamera:
         return f"RealSense camera {self.config.serial} ({self.name}){where}"
 
     def _play_to_end(self) -> None:
-        """Drop the recording's remaining frame sets until its playback has stopped, within `timeout_ms`."""
+        """Drop the recording's remaining frame sets until its playback has stopped (within `timeout_ms`), then wait
+        for its reader thread to finish stopping."""
         stopped = _rs().playback_status.stopped
         deadline = time.monotonic() + self.timeout_ms / 1000
         while self._playback.current_status() != stopped and time.monotonic() < deadline:
@@ -186,6 +187,10 @@ class RealSenseCamera:
         if self._playback.current_status() != stopped:
             log.warning("camera %s: recording %s still playing after %.1f s; stopping it anyway", self.name,
                         self.recording, self.timeout_ms / 1000)
+        # the status reads "stopped" as the reader thread begins to stop; it then rewinds the file and tells the
+        # pipeline, and a pipeline stopped and freed meanwhile is called after its end (a rare segfault under load).
+        # `pause` runs on that thread and returns once the thread has done all it had queued
+        self._playback.pause()
 
     def _frames(self, count: int, seconds: float) -> Any:
         """The `count`-th next frame set (the ones before it are dropped), all within `seconds`."""
