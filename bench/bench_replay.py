@@ -1,12 +1,14 @@
 """Replay the executed grasps of an evaluation run in the twin under other solver iterations and grip forces.
 
     python bench/bench_replay.py --run DIR --objects kettle_gooseneck,frying_pan_crepe --prompt handle \
-        --settings 100:100,300:100,100:235 [--seed 0] [--limit 8] [--out docs/results/replay.md]
+        --settings 100:100,300:100,100:235 [--seed 0] [--limit 8] [--out docs/results/replay.md] [--contacts DIR]
 
 Each grasp is re-executed in its recorded scene (`scene_seed`) with the recorded pose and width; a setting is
 `ITERATIONS:FORCE` (solver iterations for the whole trial, grip force in N). The table counts the trials that
 lifted and names the failures of the others, so that what a converged solve holds can be told from what the
-twin's default settings drop. The lines printed are also written to `--out` (atomically).
+twin's default settings drop. The lines printed are also written to `--out` (atomically). With `--contacts DIR`,
+each replayed trial also writes what the fingertips pressed on at each stage (`sim.recording.ContactLog`: points,
+normals against the closing axis, forces, the object's height) to DIR/OBJECT-PROMPT-seedS-rankR-ITERATIONSxFORCE.md.
 """
 
 from __future__ import annotations
@@ -43,16 +45,24 @@ def recorded_grasps(run: Path, object_id: str, prompt: str, seed: int, limit: in
     return sorted(rows, key=lambda r: (r["method"], r["rank"]))[:limit]
 
 
-def replay(model, rows: list[dict], iterations: int, force: float) -> tuple[collections.Counter, float, float]:
+def contact_log_name(row: dict, iterations: int, force: float) -> str:
+    """The file name of a replayed trial's contact log (module doc)."""
+    return f"{row['object_id']}-{row['prompt']}-seed{seed_of(row)}-rank{row['rank']}-{iterations}x{force:g}.md"
+
+
+def replay(model, rows: list[dict], iterations: int, force: float, contacts: Path | None = None
+           ) -> tuple[collections.Counter, float, float]:
     """Outcomes (failure name, "lifted" for success) of the recorded grasps, the median wall time of a trial and the
     median squeeze the pads delivered at the end of the hold (half the summed normal force of both pads, N; NaN if
-    no grasp was held)."""
+    no grasp was held); with `contacts`, a contact log of each trial is written there (module doc)."""
     outcomes, times, squeezes = collections.Counter(), [], []
     physics = PhysicsSettings(solver_iterations=iterations, light_object_iterations=None)
     with SimCell([model], embodiment="arm", seed=0, image_size=(64, 48), physics=physics,
                  gripper=GripperSettings(force)) as cell:
         for row in rows:
             cell.reset(seed=row["scene_seed"], object_id=model.object_id)
+            if contacts is not None:
+                cell.log_contacts_next(contacts / contact_log_name(row, iterations, force))
             start = time.perf_counter()
             outcome = cell.execute(np.array(row["T_world_grasp"]), row["width"])
             times.append(time.perf_counter() - start)
@@ -72,6 +82,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--limit", type=int, default=8, help="grasps per object")
     parser.add_argument("--out", type=Path, default=None)
+    parser.add_argument("--contacts", type=Path, default=None, metavar="DIR",
+                        help="write a contact log of every replayed trial into this folder")
     args = parser.parse_args()
     if not (args.run / "trials.jsonl").is_file():
         parser.error(f"--run {args.run}: no trials.jsonl there")
@@ -79,6 +91,8 @@ def main() -> None:
     unknown = [o for o in args.objects.split(",") if o not in models]
     if unknown:
         parser.error(f"unknown object id(s) {unknown}")
+    if args.contacts is not None:
+        args.contacts.mkdir(parents=True, exist_ok=True)
     logging.basicConfig(level=logging.WARNING)
     lines = ["| object | grasps | iterations | force (N) | squeeze delivered (N, median) | lifted | failures "
              "| trial (s, median) |", "|---|---|---|---|---|---|---|---|"]
@@ -88,7 +102,7 @@ def main() -> None:
         if not rows:
             parser.error(f"no executed {object_id} / {args.prompt} trial at seed {args.seed} in {args.run}")
         for iterations, force in args.settings:
-            outcomes, trial_s, squeeze = replay(models[object_id], rows, iterations, force)
+            outcomes, trial_s, squeeze = replay(models[object_id], rows, iterations, force, args.contacts)
             failures = ", ".join(f"{name} {n}" for name, n in sorted(outcomes.items()) if name != "lifted") or "-"
             lines.append(f"| {object_id} | {len(rows)} | {iterations} | {force:g} | {squeeze:.0f} "
                          f"| {outcomes['lifted']} | {failures} | {trial_s:.2f} |")

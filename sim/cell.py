@@ -6,7 +6,8 @@ Franka Hand (`robot="panda"`, `sim.panda`) or a floating 2F-85 - one object at a
 `object_mesh()` gives the twin's mesh and pose (of the object the request names), and `execute(T_world_grasp,
 width)` runs the grasp-and-lift primitive (`sim.grasp_primitive`), which keeps clear of the other objects.
 
-`record_next(path)` makes the next `execute()` write a picture strip of its stages (`sim.recording`).
+`record_next(path)` makes the next `execute()` write a picture strip of its stages, `log_contacts_next(path)` a table
+of what the fingertips press on at each stage (`sim.recording`).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from sim.cameras import DepthNoise, VirtualD435
 from sim.floating_gripper import FloatingGripper
 from sim.grasp_primitive import GraspPrimitive, GraspSettings
 from sim.gripper import GripperSettings
-from sim.recording import TrialRecorder
+from sim.recording import ContactLog, StageRecorder, TrialRecorder
 from sim.robot import ArmSettings, UR5Arm
 from sim.world import (
     TABLE_TOP_Z,
@@ -144,7 +145,7 @@ class SimCell:
         self.neighbours: list[tuple[int, str]] = []  # (body, object id) of the other objects on the table
         self.scene_plan = None  # the scene's `sim.scenes.ScenePlan` (None: the object alone)
         self._scene_seed = -1  # reset(None) takes the next scene seed
-        self._recorder: TrialRecorder | None = None
+        self._recorder: StageRecorder | None = None
         self.reset(seed)
 
     # --- Cell interface ---------------------------------------------------------------------------------------
@@ -251,6 +252,12 @@ class SimCell:
     def record_next(self, path: str | Path) -> None:
         """Record the next `execute()` as a picture strip (pre-grasp, closed, lifted, held) written to `path`."""
         self._recorder = TrialRecorder(path)
+
+    def log_contacts_next(self, path: str | Path) -> None:
+        """Log what the fingertips press on at each stage of the next `execute()` in the current scene to `path`
+        (`sim.recording.ContactLog`); replaces a recording armed before."""
+        self._require_scene()
+        self._recorder = ContactLog(path, self.robot.body, self.robot.gripper.fingertip_links, self.object_body)
 
     def close(self) -> None:
         if self.world is not None:

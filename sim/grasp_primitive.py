@@ -26,7 +26,7 @@ from scipy.spatial.transform import Rotation
 
 from seggrasp.cell import LIFT_SUCCESS, MAX_ROTATION_DEG, MAX_SLIP, GraspOutcome
 from seggrasp.objects import ObjectModel
-from sim.recording import TrialRecorder
+from sim.recording import StageRecorder
 from sim.world import World
 
 #: The object's drift in the fingers is checked every this many physics steps during lift and hold.
@@ -67,7 +67,7 @@ class GraspPrimitive:
 
     def __init__(
         self, world: World, robot, object_body: int, model: ObjectModel, settings: GraspSettings,
-        recorder: TrialRecorder | None = None, neighbours: Sequence[tuple[int, str]] = (),
+        recorder: StageRecorder | None = None, neighbours: Sequence[tuple[int, str]] = (),
     ) -> None:
         """`neighbours`: (body, object id) of the other objects on the table, which no configuration of the motion
         may touch and whose displacement the outcome reports."""

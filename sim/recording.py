@@ -1,21 +1,24 @@
-"""Picture strips of one grasp trial: a virtual camera that follows the gripper, one frame per stage.
+"""Records of one grasp trial, taken at its stages: a picture strip, or a log of what the fingertips press on.
 
-`SimCell.record_next(path)` arms a `TrialRecorder` for the next `execute()`: the grasp primitive calls
-`snap(stage)` at the pre-grasp, after closing, after the lift and after the hold, and the recorder writes the
-frames side by side as one PNG (atomically), captioned with the stage and, at the end, the outcome.
+`SimCell.record_next(path)` arms a `TrialRecorder` for the next `execute()`, `SimCell.log_contacts_next(path)` a
+`ContactLog`. The grasp primitive calls the armed recorder's `snap(client, stage, T_world_tcp)` at the pre-grasp,
+after closing, after the lift and after the hold, then `write(caption)` with the outcome. A `TrialRecorder` writes
+the frames side by side as one PNG, a `ContactLog` a markdown table of every fingertip contact (both atomically).
 """
 
 from __future__ import annotations
 
 import io
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 from PIL import Image, ImageDraw
 
-from seggrasp.io import atomic_write_bytes
+from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
+from sim.world import TABLE_TOP_Z, pb_to_pose
 
 #: Stages the grasp primitive captures, in order.
 STAGES = ("pre-grasp", "closed", "lifted", "held")
@@ -23,6 +26,14 @@ STAGES = ("pre-grasp", "closed", "lifted", "held")
 FRAME_SIZE = (320, 240)
 #: Where the camera sits relative to the gripper's TCP (world frame, m): in front of the robot, a little up.
 CAMERA_OFFSET = np.array([0.30, -0.22, 0.16])
+
+
+class StageRecorder(Protocol):
+    """What the grasp primitive calls on an armed recorder: `snap` at each stage, `write` once with the outcome."""
+
+    def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None: ...
+
+    def write(self, caption: str) -> Path: ...
 
 
 class TrialRecorder:
@@ -54,3 +65,54 @@ class TrialRecorder:
         strip.save(buffer, format="PNG")
         atomic_write_bytes(self.path, buffer.getvalue())
         return self.path
+
+
+class ContactLog:
+    """What the fingertips press on at each stage of one trial, for telling why a grasp failed: per contact between
+    a fingertip link (`fingertip_links`, per side) of `robot_body` and `object_body`, the point and the contact
+    normal in the object's frame (the URDF frame, as its mesh), the normal's angle to the gripper's closing axis
+    and the normal force; per stage, the height of the object's origin over the table and its tilt (far below
+    zero: the object fell through the table)."""
+
+    HEADER = ("| stage | object origin over the table (mm) | object tilt (deg) | side | point (mm, object frame) "
+              "| normal (object frame) | normal to closing axis (deg) | normal force (N) |")
+
+    def __init__(self, path: str | Path, robot_body: int, fingertip_links: tuple[tuple[int, ...], ...],
+                 object_body: int) -> None:
+        self.path = Path(path)
+        self.robot_body, self.fingertip_links, self.object_body = robot_body, fingertip_links, object_body
+        self.rows: list[str] = []
+
+    def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None:
+        """Log the object's pose and every fingertip contact now, under `stage`."""
+        T_world_com = pb_to_pose(*client.getBasePositionAndOrientation(self.object_body))
+        dynamics = client.getDynamicsInfo(self.object_body, -1)
+        T_obj_world = np.linalg.inv(T_world_com @ np.linalg.inv(pb_to_pose(dynamics[3], dynamics[4])))
+        height = 1000.0 * (np.linalg.inv(T_obj_world)[2, 3] - TABLE_TOP_Z)
+        tilt = np.degrees(np.arccos(np.clip(np.linalg.inv(T_obj_world)[2, 2], -1.0, 1.0)))
+        stage_cells = f"| {stage} | {height:.1f} | {tilt:.1f} "
+        closing = np.asarray(T_world_tcp, dtype=float)[:3, 0]
+        logged = 0
+        for side, links in enumerate(self.fingertip_links):
+            for link in links:
+                for contact in client.getContactPoints(self.robot_body, self.object_body, linkIndexA=link):
+                    point = 1000.0 * (T_obj_world @ np.append(contact[6], 1.0))[:3]
+                    normal = np.asarray(contact[7], dtype=float)  # world frame, from the object to the fingertip
+                    angle = np.degrees(np.arccos(np.clip(abs(normal @ closing), 0.0, 1.0)))
+                    local = T_obj_world[:3, :3] @ normal
+                    self.rows.append(
+                        stage_cells + f"| {side} | {_vector(point, 1)} | {_vector(local, 2)} | {angle:.1f} "
+                        f"| {contact[9]:.1f} |")
+                    logged += 1
+        if not logged:
+            self.rows.append(stage_cells + "| - | - | - | - | 0 |")
+
+    def write(self, caption: str) -> Path:
+        """Write the logged contacts as a markdown table under `caption` (atomically)."""
+        table = [self.HEADER, "|" + "---|" * 8, *self.rows]
+        atomic_write_text(self.path, f"{caption}\n\n" + "\n".join(table) + "\n")
+        return self.path
+
+
+def _vector(values: np.ndarray, decimals: int) -> str:
+    return "(" + ", ".join(f"{v:.{decimals}f}" for v in values) + ")"

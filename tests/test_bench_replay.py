@@ -25,3 +25,8 @@ def test_the_executed_grasps_of_one_object_prompt_and_seed_are_replayed_in_rank_
     picked = bench_replay.recorded_grasps(tmp_path, "mug_classic", "handle", 0, limit=2)
     assert [r["rank"] for r in picked] == [0, 1]
     assert len(bench_replay.recorded_grasps(tmp_path, "mug_classic", "handle", 0, limit=10)) == 3
+
+
+def test_a_contact_log_is_named_after_its_trial_and_setting():
+    row = dict(object_id="knife_chef", prompt="blade", seed=1, rank=3)
+    assert bench_replay.contact_log_name(row, 300, 235.0) == "knife_chef-blade-seed1-rank3-300x235.md"

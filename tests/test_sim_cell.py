@@ -252,3 +252,31 @@ def test_record_next_writes_a_picture_strip_of_the_next_trial_only(cell, tmp_pat
     cell.reset(seed=5)
     cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
     assert not path.exists()  # one-shot
+
+
+def test_log_contacts_next_tells_what_the_fingertips_press_on_at_each_stage(cell, tmp_path):
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    path = tmp_path / "contacts.md"
+    cell.log_contacts_next(path)
+    outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    assert outcome.lifted, outcome.message
+    caption, _, table = path.read_text().partition("\n\n")
+    assert caption.endswith(outcome.message)
+    rows = [[cell.strip() for cell in line.strip("|").split("|")] for line in table.splitlines()[2:]]
+    assert rows[0][0] == "pre-grasp" and {row[0] for row in rows} == {"pre-grasp", "closed", "lifted", "held"}
+    held = [row for row in rows if row[0] == "held"]
+    assert float(held[0][1]) > 150.0  # the box's origin is lifted ~20 cm over the table
+    assert {row[3] for row in held} == {"0", "1"}  # both fingertips press on it
+    # a top-down grasp across the box closes on its flat sides: almost all the squeeze presses along the closing
+    # axis (the fingers' rims may also touch the box's top edge, its normal 9 deg off)
+    force = np.array([float(row[7]) for row in held])
+    along = np.array([float(row[6]) < 5.0 for row in held])
+    assert force.sum() > 50.0 and force[along].sum() >= 0.9 * force.sum()
+    assert {row[3] for row, f in zip(held, force) if f > 1.0} == {"0", "1"}
+    pre_grasp = [row for row in rows if row[0] == "pre-grasp"]
+    assert [row[3] for row in pre_grasp] == ["-"]  # nothing touched yet
+    path.unlink()
+    cell.reset(seed=5)
+    cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    assert not path.exists()  # one-shot
