@@ -257,7 +257,8 @@ class SimCell:
         """Log what the fingertips press on at each stage of the next `execute()` in the current scene to `path`
         (`sim.recording.ContactLog`); replaces a recording armed before."""
         self._require_scene()
-        self._recorder = ContactLog(path, self.robot.body, self.robot.gripper.fingertip_links, self.object_body)
+        self._recorder = ContactLog(path, self.world, self.robot.body, self.robot.gripper.fingertip_links,
+                                    self.object_body)
 
     def close(self) -> None:
         if self.world is not None:

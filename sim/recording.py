@@ -18,7 +18,7 @@ from PIL import Image, ImageDraw
 from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
-from sim.world import TABLE_TOP_Z, pb_to_pose
+from sim.world import TABLE_TOP_Z, World
 
 #: Stages the grasp primitive captures, in order.
 STAGES = ("pre-grasp", "closed", "lifted", "held")
@@ -77,20 +77,19 @@ class ContactLog:
     HEADER = ("| stage | object origin over the table (mm) | object tilt (deg) | side | point (mm, object frame) "
               "| normal (object frame) | normal to closing axis (deg) | normal force (N) |")
 
-    def __init__(self, path: str | Path, robot_body: int, fingertip_links: tuple[tuple[int, ...], ...],
+    def __init__(self, path: str | Path, world: World, robot_body: int, fingertip_links: tuple[tuple[int, ...], ...],
                  object_body: int) -> None:
         self.path = Path(path)
+        self.world = world
         self.robot_body, self.fingertip_links, self.object_body = robot_body, fingertip_links, object_body
         self.rows: list[str] = []
 
     def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None:
         """Log the object's pose and every fingertip contact now, under `stage`."""
-        T_world_com = pb_to_pose(*client.getBasePositionAndOrientation(self.object_body))
-        dynamics = client.getDynamicsInfo(self.object_body, -1)
-        T_obj_world = np.linalg.inv(T_world_com @ np.linalg.inv(pb_to_pose(dynamics[3], dynamics[4])))
-        height = 1000.0 * (np.linalg.inv(T_obj_world)[2, 3] - TABLE_TOP_Z)
-        tilt = np.degrees(np.arccos(np.clip(np.linalg.inv(T_obj_world)[2, 2], -1.0, 1.0)))
-        stage_cells = f"| {stage} | {height:.1f} | {tilt:.1f} "
+        T_world_obj = self.world.body_pose(self.object_body)
+        T_obj_world = np.linalg.inv(T_world_obj)
+        tilt = np.degrees(np.arccos(np.clip(T_world_obj[2, 2], -1.0, 1.0)))
+        stage_cells = f"| {stage} | {1000.0 * (T_world_obj[2, 3] - TABLE_TOP_Z):.1f} | {tilt:.1f} "
         closing = np.asarray(T_world_tcp, dtype=float)[:3, 0]
         logged = 0
         for side, links in enumerate(self.fingertip_links):
