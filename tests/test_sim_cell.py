@@ -236,11 +236,8 @@ def test_record_next_writes_a_picture_strip_of_the_next_trial_only(cell, tmp_pat
 
     from sim.recording import FRAME_SIZE, STAGES
 
-    cell.reset(seed=5)
-    _, T_world_obj = cell.object_mesh()
     path = tmp_path / "strip.png"
-    cell.record_next(path)
-    outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    outcome = _lift_the_box(cell, lambda: cell.record_next(path))
     assert outcome.lifted
     strip = np.asarray(Image.open(path).convert("RGB"))
     assert strip.shape[1] == FRAME_SIZE[0] * len(STAGES) and strip.shape[0] > FRAME_SIZE[1]
@@ -249,21 +246,17 @@ def test_record_next_writes_a_picture_strip_of_the_next_trial_only(cell, tmp_pat
     assert all(frame.std() > 10 for frame in frames)
     assert np.abs(frames[0] - frames[3]).mean() > 1.0
     path.unlink()
-    cell.reset(seed=5)
-    cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    _lift_the_box(cell)
     assert not path.exists()  # one-shot
 
 
 def test_log_contacts_next_tells_what_the_fingertips_press_on_at_each_stage(cell, tmp_path):
-    cell.reset(seed=5)
-    _, T_world_obj = cell.object_mesh()
     path = tmp_path / "contacts.md"
-    cell.log_contacts_next(path)
-    outcome = cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    outcome = _lift_the_box(cell, lambda: cell.log_contacts_next(path))
     assert outcome.lifted, outcome.message
     caption, _, table = path.read_text().partition("\n\n")
     assert caption.endswith(outcome.message)
-    rows = [[cell.strip() for cell in line.strip("|").split("|")] for line in table.splitlines()[2:]]
+    rows = [[field.strip() for field in line.strip("|").split("|")] for line in table.splitlines()[2:]]
     assert rows[0][0] == "pre-grasp" and {row[0] for row in rows} == {"pre-grasp", "closed", "lifted", "held"}
     held = [row for row in rows if row[0] == "held"]
     assert float(held[0][1]) > 150.0  # the box's origin is lifted ~20 cm over the table
@@ -277,6 +270,13 @@ def test_log_contacts_next_tells_what_the_fingertips_press_on_at_each_stage(cell
     pre_grasp = [row for row in rows if row[0] == "pre-grasp"]
     assert [row[3] for row in pre_grasp] == ["-"]  # nothing touched yet
     path.unlink()
-    cell.reset(seed=5)
-    cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
+    _lift_the_box(cell)
     assert not path.exists()  # one-shot
+
+
+def _lift_the_box(cell, arm=lambda: None):
+    """Reset scene 5, call `arm()` (a recording of the next trial), grasp the box top-down and lift it."""
+    cell.reset(seed=5)
+    _, T_world_obj = cell.object_mesh()
+    arm()
+    return cell.execute(top_down_grasp(T_world_obj, 0.06), 0.05)
