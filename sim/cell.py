@@ -254,11 +254,9 @@ class SimCell:
         self._recorder = TrialRecorder(path)
 
     def log_contacts_next(self, path: str | Path) -> None:
-        """Log what the fingertips press on at each stage of the next `execute()` in the current scene to `path`
+        """Log what the fingertips press on at each stage of the next `execute()` to `path`
         (`sim.recording.ContactLog`); replaces a recording armed before."""
-        self._require_scene()
-        self._recorder = ContactLog(path, self.world, self.robot.body, self.robot.gripper.fingertip_links,
-                                    self.object_body)
+        self._recorder = ContactLog(path)
 
     def close(self) -> None:
         if self.world is not None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import trimesh
@@ -33,6 +34,16 @@ from sim.world import World
 TRACK_EVERY = 4
 #: Another object on the table whose origin rose this much (m) by the end of the hold was lifted along.
 LIFTED_ALONG = 0.05
+
+
+class PadContact(NamedTuple):
+    """One fingertip-object contact: the side (0 = left, 1 = right), the point and the contact normal (from the
+    object towards the fingertip) in the object's frame, and the normal force (N)."""
+
+    side: int
+    point: np.ndarray
+    normal: np.ndarray
+    force: float
 
 
 @dataclass(frozen=True)
@@ -144,11 +155,11 @@ class GraspPrimitive:
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
         self.gripper.close_until_stall()
         self._snap("closed")
-        touched = self._pad_contacts()
-        if {side for side, _, _ in touched} != {0, 1}:
+        touched = self.pad_contacts()
+        if {c.side for c in touched} != {0, 1}:
             failure = "pushed" if pushed else "empty_close"
             return self._outcome(failure, f"{failure}: the fingers closed on no grasp", touched, 0.0, 0.0)
-        T_obj_grasp = np.linalg.inv(self.world.body_pose(self.object_body)) @ self._T_world_tcp()
+        T_obj_grasp = np.linalg.inv(self.world.body_pose(self.object_body)) @ self.T_world_tcp()
         point = T_obj_grasp[:, 3]  # the grasped point, object frame
         T_tcp_obj0 = np.linalg.inv(T_obj_grasp)
         drift, steps = [0.0, 0.0], [0]
@@ -157,7 +168,7 @@ class GraspPrimitive:
             steps[0] += 1
             if steps[0] % TRACK_EVERY:
                 return
-            T_tcp_obj = np.linalg.inv(self._T_world_tcp()) @ self.world.body_pose(self.object_body)
+            T_tcp_obj = np.linalg.inv(self.T_world_tcp()) @ self.world.body_pose(self.object_body)
             moved, turned = _moved(T_tcp_obj0, T_tcp_obj, point)
             drift[0], drift[1] = max(drift[0], moved), max(drift[1], turned)
 
@@ -172,9 +183,9 @@ class GraspPrimitive:
         steps[0] = -1
         track()
         self._snap("held")
-        final = self._pad_contacts()
+        final = self.pad_contacts()
         rise = float((self.world.body_pose(self.object_body) @ point)[2] - (T_obj_start @ point)[2])
-        held = {side for side, _, _ in final} == {0, 1}
+        held = {c.side for c in final} == {0, 1}
         if not held or rise < s.lift_success:
             failure = "pushed" if pushed and not held else "slipped"
             message = f"{failure}: " + ("dropped" if not held else f"grasped point rose only {rise * 100:.1f} cm")
@@ -186,7 +197,8 @@ class GraspPrimitive:
             failure, message = "", "lifted"
         return self._outcome(failure, message, touched + final, rise, float(np.mean(forces)))
 
-    def _outcome(self, failure: str, message: str, contacts: list, rise: float, force: float) -> GraspOutcome:
+    def _outcome(self, failure: str, message: str, contacts: list[PadContact], rise: float, force: float
+                 ) -> GraspOutcome:
         """The outcome with the touched faces weighted by the normal force of their contacts; closes a recording."""
         faces, weights = self._touched_faces(contacts)
         if self.recorder is not None:
@@ -199,12 +211,13 @@ class GraspPrimitive:
             lifted_along=sum(end[2, 3] - start[2, 3] > LIFTED_ALONG for start, end in zip(self._neighbours_start, ends)),
         )
 
-    def _T_world_tcp(self) -> np.ndarray:
+    def T_world_tcp(self) -> np.ndarray:
+        """The gripper's TCP now (its x axis is the closing axis)."""
         return self.world.link_pose(self.gripper.body, self.gripper.base_link) @ self._T_base_tcp
 
     def _snap(self, stage: str) -> None:
         if self.recorder is not None:
-            self.recorder.snap(self.world.client, stage, self._T_world_tcp())
+            self.recorder.snap(self, stage)
 
     def collision_on_path(self, transit: list, approach: list, opening: float, closed: list = (),
                           width: float = 0.0) -> str:
@@ -237,29 +250,29 @@ class GraspPrimitive:
                     return f"robot would hit the {name} beside the object (waypoint {index + 1} of {len(configs)})"
         return ""
 
-    def _pad_contacts(self) -> list[tuple[int, np.ndarray, float]]:
-        """(side 0 = left / 1 = right, contact point in the object frame, normal force N) for every
-        fingertip-object contact (a fingertip is the inner finger with its pad: the finger mesh's rim touches as
-        well as the pad box)."""
+    def pad_contacts(self) -> list[PadContact]:
+        """Every fingertip-object contact now (a fingertip is the inner finger with its pad: the finger mesh's rim
+        touches as well as the pad box)."""
         T_obj_world = np.linalg.inv(self.world.body_pose(self.object_body))
         contacts = []
         for side, links in enumerate(self.gripper.fingertip_links):
             for link in links:
                 for point in self.world.client.getContactPoints(self.robot.body, self.object_body, linkIndexA=link):
-                    contacts.append((side, (T_obj_world @ np.append(point[6], 1.0))[:3], float(point[9])))
+                    contacts.append(PadContact(side, (T_obj_world @ np.append(point[6], 1.0))[:3],
+                                               T_obj_world[:3, :3] @ np.asarray(point[7]), float(point[9])))
         return contacts
 
     def _pad_normal_force(self) -> float:
         """Total normal force (N) between the fingertips and the object."""
-        return float(sum(force for _, _, force in self._pad_contacts()))
+        return float(sum(c.force for c in self.pad_contacts()))
 
-    def _touched_faces(self, contacts: list) -> tuple[np.ndarray, np.ndarray]:
+    def _touched_faces(self, contacts: list[PadContact]) -> tuple[np.ndarray, np.ndarray]:
         """Mesh faces nearest to the contact points and the summed normal force on each (uniform weights when
         no contact carried force)."""
         if not contacts:
             return np.zeros(0, dtype=np.int64), np.zeros(0)
-        points = np.array([point for _, point, _ in contacts])
-        forces = np.array([force for _, _, force in contacts])
+        points = np.array([c.point for c in contacts])
+        forces = np.array([c.force for c in contacts])
         _, _, triangles = trimesh.proximity.closest_point(self.model.mesh, points)
         faces, inverse = np.unique(np.asarray(triangles, dtype=np.int64), return_inverse=True)
         weights = np.bincount(inverse.reshape(-1), weights=forces, minlength=len(faces))

@@ -1,7 +1,7 @@
 """Records of one grasp trial, taken at its stages: a picture strip, or a log of what the fingertips press on.
 
 `SimCell.record_next(path)` arms a `TrialRecorder` for the next `execute()`, `SimCell.log_contacts_next(path)` a
-`ContactLog`. The grasp primitive calls the armed recorder's `snap(client, stage, T_world_tcp)` at the pre-grasp,
+`ContactLog`. The grasp primitive calls the armed recorder's `snap(trial, stage)` (itself) at the pre-grasp,
 after closing, after the lift and after the hold, then `write(caption)` with the outcome. A `TrialRecorder` writes
 the frames side by side as one PNG, a `ContactLog` a markdown table of every fingertip contact (both atomically).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -18,7 +18,10 @@ from PIL import Image, ImageDraw
 from seggrasp.io import atomic_write_bytes, atomic_write_text
 from seggrasp.views import look_at
 from sim.cameras import VirtualD435
-from sim.world import TABLE_TOP_Z, World
+from sim.world import TABLE_TOP_Z
+
+if TYPE_CHECKING:
+    from sim.grasp_primitive import GraspPrimitive
 
 #: Stages the grasp primitive captures, in order.
 STAGES = ("pre-grasp", "closed", "lifted", "held")
@@ -31,7 +34,7 @@ CAMERA_OFFSET = np.array([0.30, -0.22, 0.16])
 class StageRecorder(Protocol):
     """What the grasp primitive calls on an armed recorder: `snap` at each stage, `write` once with the outcome."""
 
-    def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None: ...
+    def snap(self, trial: GraspPrimitive, stage: str) -> None: ...
 
     def write(self, caption: str) -> Path: ...
 
@@ -44,11 +47,11 @@ class TrialRecorder:
         self.size = size
         self.frames: list[tuple[str, np.ndarray]] = []
 
-    def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None:
+    def snap(self, trial: GraspPrimitive, stage: str) -> None:
         """Render the scene from `CAMERA_OFFSET` beside the TCP, looking at it, and keep it captioned `stage`."""
-        target = np.asarray(T_world_tcp, dtype=float)[:3, 3]
+        target = trial.T_world_tcp()[:3, 3]
         camera = VirtualD435("recorder", look_at(target + CAMERA_OFFSET, target), *self.size)
-        rgb, _, _ = camera.render(client)
+        rgb, _, _ = camera.render(trial.world.client)
         self.frames.append((stage, np.asarray(rgb)[..., :3]))
 
     def write(self, caption: str) -> Path:
@@ -68,42 +71,30 @@ class TrialRecorder:
 
 
 class ContactLog:
-    """What the fingertips press on at each stage of one trial, for telling why a grasp failed: per contact between
-    a fingertip link (`fingertip_links`, per side) of `robot_body` and `object_body`, the point and the contact
-    normal in the object's frame (the URDF frame, as its mesh), the normal's angle to the gripper's closing axis
-    and the normal force; per stage, the height of the object's origin over the table and its tilt (far below
-    zero: the object fell through the table)."""
+    """What the fingertips press on at each stage of one trial, for telling why a grasp failed: per fingertip contact
+    (`GraspPrimitive.pad_contacts`) the side, the point and the contact normal in the object's frame (the URDF frame,
+    as its mesh), the normal's angle to the gripper's closing axis and the normal force; per stage, the height of the
+    object's origin over the table and its tilt (far below zero: the object fell through the table)."""
 
     HEADER = ("| stage | object origin over the table (mm) | object tilt (deg) | side | point (mm, object frame) "
               "| normal (object frame) | normal to closing axis (deg) | normal force (N) |")
 
-    def __init__(self, path: str | Path, world: World, robot_body: int, fingertip_links: tuple[tuple[int, ...], ...],
-                 object_body: int) -> None:
+    def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        self.world = world
-        self.robot_body, self.fingertip_links, self.object_body = robot_body, fingertip_links, object_body
         self.rows: list[str] = []
 
-    def snap(self, client, stage: str, T_world_tcp: np.ndarray) -> None:
+    def snap(self, trial: GraspPrimitive, stage: str) -> None:
         """Log the object's pose and every fingertip contact now, under `stage`."""
-        T_world_obj = self.world.body_pose(self.object_body)
-        T_obj_world = np.linalg.inv(T_world_obj)
+        T_world_obj = trial.world.body_pose(trial.object_body)
         tilt = np.degrees(np.arccos(np.clip(T_world_obj[2, 2], -1.0, 1.0)))
         stage_cells = f"| {stage} | {1000.0 * (T_world_obj[2, 3] - TABLE_TOP_Z):.1f} | {tilt:.1f} "
-        closing = np.asarray(T_world_tcp, dtype=float)[:3, 0]
-        logged = 0
-        for side, links in enumerate(self.fingertip_links):
-            for link in links:
-                for contact in client.getContactPoints(self.robot_body, self.object_body, linkIndexA=link):
-                    point = 1000.0 * (T_obj_world @ np.append(contact[6], 1.0))[:3]
-                    normal = np.asarray(contact[7], dtype=float)  # world frame, from the object to the fingertip
-                    angle = np.degrees(np.arccos(np.clip(abs(normal @ closing), 0.0, 1.0)))
-                    local = T_obj_world[:3, :3] @ normal
-                    self.rows.append(
-                        stage_cells + f"| {side} | {_vector(point, 1)} | {_vector(local, 2)} | {angle:.1f} "
-                        f"| {contact[9]:.1f} |")
-                    logged += 1
-        if not logged:
+        closing = T_world_obj[:3, :3].T @ trial.T_world_tcp()[:3, 0]  # in the object's frame, as the contacts
+        contacts = trial.pad_contacts()
+        for c in contacts:
+            angle = np.degrees(np.arccos(np.clip(abs(c.normal @ closing), 0.0, 1.0)))
+            self.rows.append(stage_cells + f"| {c.side} | {_vector(1000.0 * c.point, 1)} | {_vector(c.normal, 2)} "
+                             f"| {angle:.1f} | {c.force:.1f} |")
+        if not contacts:
             self.rows.append(stage_cells + "| - | - | - | - | 0 |")
 
     def write(self, caption: str) -> Path:
