@@ -22,6 +22,7 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench.bench_lab import commit  # noqa: E402
 from seggrasp.io import atomic_write_text  # noqa: E402
 from seggrasp.object_physics import obj_group_names  # noqa: E402
 from seggrasp.objects import asset_ids, load_asset  # noqa: E402
@@ -78,7 +79,7 @@ def report(fits: list[Fit], command: str, seconds: float) -> str:
     """The markdown page of the fits."""
     lines = [
         "# Collision models against meshes", "", f"`{command}`", "",
-        f"Written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {seconds:.0f} s.", "",
+        f"Written {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())} at commit {commit()}; {seconds:.0f} s.", "",
         "How far the outside surface of each twin object's collision hulls (what the pads stop on) stands from its "
         "mesh (what grasps are planned on and the touched part is read from), over samples of the hulls' outside "
         "surface (bench/bench_collision_fit.py's docstring).", "",
