@@ -25,6 +25,8 @@ TABLE_TOP_Z = 0.0
 #: Table extents (x, y) and thickness in metres; the robot base sits near its -x edge.
 TABLE_SIZE = (1.2, 1.2, 0.05)
 TABLE_CENTER_XY = (0.35, 0.0)
+#: The table top's friction coefficient (PyBullet multiplies it by the object's).
+TABLE_FRICTION = 0.6
 #: Where objects are dropped: centre (x, y) on the table, +-jitter in x and y, full yaw.
 WORKSPACE_CENTER = np.array([0.5, 0.0])
 WORKSPACE_JITTER = 0.05
@@ -149,7 +151,7 @@ class World:
             baseVisualShapeIndex=visual,
             basePosition=[TABLE_CENTER_XY[0], TABLE_CENTER_XY[1], TABLE_TOP_Z - half[2]],
         )
-        c.changeDynamics(self.table_id, -1, lateralFriction=0.6)
+        c.changeDynamics(self.table_id, -1, lateralFriction=TABLE_FRICTION)
 
     def load_robot(self, path: Path, T_world_base: np.ndarray | None = None, fixed: bool = True) -> int:
         """Load a robot's URDF file and return its body id."""
