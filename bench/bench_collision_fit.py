@@ -22,8 +22,7 @@ import trimesh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_lab import commit  # noqa: E402
-from seggrasp.io import atomic_write_text  # noqa: E402
+from bench.bench_lab import command_line, commit, publish  # noqa: E402
 from seggrasp.object_physics import obj_group_names  # noqa: E402
 from seggrasp.objects import asset_ids, load_asset  # noqa: E402
 
@@ -112,12 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     for object_id in ids:
         fits.append(twin_fit(object_id, args.samples))
         print(f"{object_id}: {fits[-1].hulls} hulls, max {1000 * fits[-1].distances.max():.2f} mm", flush=True)
-    command = "python bench/bench_collision_fit.py" + "".join(
-        f" {a}" for a in (argv if argv is not None else sys.argv[1:]))
-    text = report(fits, command, time.time() - start)
-    print(text)
-    if args.out:
-        atomic_write_text(args.out, text)
+    publish(report(fits, command_line("bench_collision_fit.py", argv), time.time() - start), args.out)
     return 0
 
 

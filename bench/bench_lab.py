@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shlex
 import subprocess
 import sys
 import time
@@ -88,6 +89,18 @@ def run_side(side: str, args: argparse.Namespace) -> dict:
         report["clock"] = request("twin_state")
     cell.close()
     return report
+
+
+def command_line(script: str, argv: list[str] | None) -> str:
+    """How a bench script was run (`argv`, default the process's arguments), for the page it writes."""
+    return shlex.join(["python", f"bench/{script}", *(argv if argv is not None else sys.argv[1:])])
+
+
+def publish(page: str, out: Path | None) -> None:
+    """Print a bench's page and, given `out`, write it there too (atomically)."""
+    print(page)
+    if out is not None:
+        atomic_write_text(out, page)
 
 
 def commit() -> str:

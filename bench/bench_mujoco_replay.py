@@ -33,10 +33,9 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench.bench_lab import commit  # noqa: E402
+from bench.bench_lab import command_line, commit, publish  # noqa: E402
 from seggrasp.cell import LIFT_SUCCESS, GraspOutcome  # noqa: E402
 from seggrasp.hands import Hand  # noqa: E402
-from seggrasp.io import atomic_write_text  # noqa: E402
 from seggrasp.objects import ObjectModel, asset_ids, load_asset  # noqa: E402
 from seggrasp.truth import GroundTruth  # noqa: E402
 from sim.cell import ROBOTS, SimCell  # noqa: E402
@@ -287,11 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     if empty:
         print(f"error: {args.run / 'trials.jsonl'} has no executed trial of {', '.join(empty)}", file=sys.stderr)
         return 2
-    command = "python bench/bench_mujoco_replay.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    text = report(results, command, time.time() - start)
-    print(text)
-    if args.out:
-        atomic_write_text(args.out, text)
+    publish(report(results, command_line("bench_mujoco_replay.py", argv), time.time() - start), args.out)
     return 0
 
 

@@ -1,7 +1,6 @@
 """bench/bench_collision_fit.py: how far collision hulls stand off the mesh."""
 
 import numpy as np
-import pytest
 import trimesh
 
 from bench.bench_collision_fit import collision_fit, main, outside_samples
