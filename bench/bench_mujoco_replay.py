@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import collections
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -28,7 +27,6 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-import trimesh
 from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -38,9 +36,10 @@ from seggrasp.cell import LIFT_SUCCESS, GraspOutcome  # noqa: E402
 from seggrasp.hands import Hand  # noqa: E402
 from seggrasp.objects import ObjectModel, asset_ids, load_asset  # noqa: E402
 from seggrasp.truth import GroundTruth  # noqa: E402
-from sim.cell import ROBOTS, SimCell  # noqa: E402
-from sim.evaluate.records import JsonLines, seed_of  # noqa: E402
-from sim.grasp_primitive import GraspSettings  # noqa: E402
+from sim.cell import SimCell  # noqa: E402
+from sim.evaluate.config import RunConfig  # noqa: E402
+from sim.evaluate.records import JsonLines, load_run, robot_of, seed_of  # noqa: E402
+from sim.grasp_primitive import GraspSettings, touched_faces  # noqa: E402
 from sim.gripper import PAD_FRICTION  # noqa: E402
 from sim.world import TABLE_FRICTION, TABLE_TOP_Z  # noqa: E402
 
@@ -112,11 +111,13 @@ def scene_xml(model: ObjectModel, T_world_obj: np.ndarray, T_world_grasp: np.nda
 <option timestep="{TIME_STEP:g}" cone="elliptic" impratio="10" integrator="implicitfast"/>
 <asset>{meshes}</asset>
 <worldbody>
- <geom type="plane" size="2 2 0.1" pos="0 0 {TABLE_TOP_Z:g}" friction="{TABLE_FRICTION * model.friction:g} 0.001 0.0001" priority="2"/>
+ <geom type="plane" size="2 2 0.1" pos="0 0 {TABLE_TOP_Z:g}" priority="2"
+  friction="{TABLE_FRICTION * model.friction:g} 0.001 0.0001"/>
  <body name="object" pos="{_vector(T_world_obj[:3, 3])}" quat="{_quat(T_world_obj[:3, :3])}"><freejoint/>
   <inertial pos="{_vector(model.center_of_mass)}" mass="{model.mass:g}" diaginertia="{_vector(inertia)}"/>{hulls}</body>
  <body name="target" mocap="true" {grasp}/>
- <body name="hand" {grasp} gravcomp="1"><freejoint/><inertial pos="0 0 0" mass="{HAND_MASS:g}" diaginertia="0.01 0.01 0.01"/>{fingers}</body>
+ <body name="hand" {grasp} gravcomp="1"><freejoint/>
+  <inertial pos="0 0 0" mass="{HAND_MASS:g}" diaginertia="0.01 0.01 0.01"/>{fingers}</body>
 </worldbody>
 <equality><weld body1="hand" body2="target" solref="{CONTACT_SOLREF}"/></equality>
 <actuator>{servos}</actuator>
@@ -154,7 +155,8 @@ def replay(model: ObjectModel, prompt: str, T_world_obj: np.ndarray, T_world_gra
     mujoco.mj_forward(m, d)
     run(SETTLE_TIME)
     T_obj_start = object_pose()
-    run(back / settings.approach_speed + 0.05, target=lambda t: start + min(t * settings.approach_speed, back) * approach)
+    run(back / settings.approach_speed + 0.05,
+        target=lambda t: start + min(t * settings.approach_speed, back) * approach)
     # the servo's target runs past the centre, so a finger stalled on the object pushes with the grip force
     limit = opening / 2 + grip_force / SERVO_KP + 0.001
     run(limit / hand.closing_speed + 0.2, closing=lambda t: np.full(2, min(t * hand.closing_speed, limit)))
@@ -182,33 +184,31 @@ def _on_part(m, d, model: ObjectModel, prompt: str, obj: int, fingers: set[int],
     if not points:
         return None
     local = (np.asarray(points) - T_world_obj[:3, 3]) @ T_world_obj[:3, :3]
-    _, _, faces = trimesh.proximity.closest_point(model.mesh, local)
-    truth = GroundTruth.of_object(model, model.prompts)
-    outcome = GraspOutcome(True, True, 0.0, touched_faces=np.asarray(faces), touched_weights=np.asarray(forces))
-    return truth.touched_on_part(outcome, model.prompts.index(prompt))
+    faces, weights = touched_faces(model.mesh, local, forces)
+    outcome = GraspOutcome(True, True, 0.0, touched_faces=faces, touched_weights=weights)
+    return GroundTruth.of_object(model, model.prompts).touched_on_part(outcome, model.prompts.index(prompt))
 
 
-def replay_run(run: Path, requests: list[tuple[str, str]], limit: int, progress=print
+def replay_run(run: Path, config: RunConfig, requests: list[tuple[str, str]], limit: int, progress=print
                ) -> dict[tuple[str, str], list[Replay]]:
-    """The first `limit` executed trials (by seed and rank) of each (object, part) request of a run, in MuJoCo."""
-    config = json.loads((run / "run.json").read_text())
+    """The first `limit` executed trials (by robot, seed and rank) of each (object, part) request of the run in
+    `run` (its recorded `config`), in MuJoCo."""
     rows = [r for r in JsonLines(run / "trials.jsonl").read() if r["executed"]]
     results: dict[tuple[str, str], list[Replay]] = {}
     for object_id, prompt in requests:
         chosen = sorted((r for r in rows if (r["object_id"], r["prompt"]) == (object_id, prompt)),
-                        key=lambda r: (r.get("robot", "ur5"), seed_of(r), r["rank"]))[:limit]
+                        key=lambda r: (robot_of(r), seed_of(r), r["rank"]))[:limit]
         model = load_asset(object_id)
         results[(object_id, prompt)] = []
-        for robot in dict.fromkeys(r.get("robot", "ur5") for r in chosen):
-            hand = ROBOTS[robot]
-            force = config.get("grip_force") or hand.default_grip_force
-            with SimCell([model], embodiment=config.get("embodiment", "arm"), robot=robot, seed=0,
-                         image_size=(64, 48), n_cameras=1) as cell:
-                for row in (r for r in chosen if r.get("robot", "ur5") == robot):
+        for robot in dict.fromkeys(map(robot_of, chosen)):
+            system = config.at_robot(robot)
+            with SimCell([model], embodiment=system.embodiment, robot=robot, seed=0, image_size=(64, 48),
+                         n_cameras=1) as cell:
+                for row in (r for r in chosen if robot_of(r) == robot):
                     cell.reset(seed=row["scene_seed"], object_id=object_id)
                     _, T_world_obj = cell.object_mesh()
-                    result = replay(model, prompt, T_world_obj, np.asarray(row["T_world_grasp"]), row["width"], hand,
-                                    force, bool(row["success"]))
+                    result = replay(model, prompt, T_world_obj, np.asarray(row["T_world_grasp"]), row["width"],
+                                    system.hand, system.hand_grip_force, bool(row["success"]))
                     results[(object_id, prompt)].append(result)
                     progress(f"{object_id} {prompt} {robot} seed {seed_of(row)} rank {row['rank']}: twin "
                              f"{'success' if row['success'] else row['failure']}, MuJoCo "
@@ -226,7 +226,8 @@ def report(results: dict[tuple[str, str], list[Replay]], command: str, seconds: 
         "object hulls, pose, grasp, grip force, closing speed, lift and hold; soft contacts, elliptic friction cones, "
         "no arm). A trial succeeds in MuJoCo when the grasped point rose at least "
         f"{100 * LIFT_SUCCESS:.0f} cm and the prompted part carried most of the squeeze.", "",
-        "| object | part | trials | twin successes | MuJoCo successes | both | twin only | MuJoCo only | MuJoCo's failures |",
+        "| object | part | trials | twin successes | MuJoCo successes | both | twin only | MuJoCo only "
+        "| MuJoCo's failures |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     totals = collections.Counter()
@@ -269,19 +270,21 @@ def main(argv: list[str] | None = None) -> int:
         requests = parse_requests(args.requests)
         if not (args.run / "run.json").is_file() or not (args.run / "trials.jsonl").is_file():
             raise ValueError(f"{args.run} holds no evaluation run (run.json and trials.jsonl)")
+        config = load_run(args.run)
         if args.limit < 1:
             raise ValueError(f"--limit must be at least 1, got {args.limit}")
         known = set(asset_ids())
         for object_id, part in requests:
             if object_id not in known:
                 raise ValueError(f"no twin object {object_id!r} (python -m assets list names them)")
-            if part not in load_asset(object_id).prompts:
-                raise ValueError(f"{object_id} has no part {part!r}; its parts: {', '.join(load_asset(object_id).prompts)}")
+            parts = load_asset(object_id).prompts
+            if part not in parts:
+                raise ValueError(f"{object_id} has no part {part!r}; its parts: {', '.join(parts)}")
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     start = time.time()
-    results = replay_run(args.run, requests, args.limit, progress=lambda line: print(line, flush=True))
+    results = replay_run(args.run, config, requests, args.limit, progress=lambda line: print(line, flush=True))
     empty = [f"{o}:{p}" for (o, p), replays in results.items() if not replays]
     if empty:
         print(f"error: {args.run / 'trials.jsonl'} has no executed trial of {', '.join(empty)}", file=sys.stderr)

@@ -200,7 +200,7 @@ class GraspPrimitive:
     def _outcome(self, failure: str, message: str, contacts: list[PadContact], rise: float, force: float
                  ) -> GraspOutcome:
         """The outcome with the touched faces weighted by the normal force of their contacts; closes a recording."""
-        faces, weights = self._touched_faces(contacts)
+        faces, weights = touched_faces(self.model.mesh, [c.point for c in contacts], [c.force for c in contacts])
         if self.recorder is not None:
             self.recorder.write(f"{self.model.object_id}: {message}")
         ends = [self.world.body_pose(body) for body, _ in self.neighbours]
@@ -266,19 +266,19 @@ class GraspPrimitive:
         """Total normal force (N) between the fingertips and the object."""
         return float(sum(c.force for c in self.pad_contacts()))
 
-    def _touched_faces(self, contacts: list[PadContact]) -> tuple[np.ndarray, np.ndarray]:
-        """Mesh faces nearest to the contact points and the summed normal force on each (uniform weights when
-        no contact carried force)."""
-        if not contacts:
-            return np.zeros(0, dtype=np.int64), np.zeros(0)
-        points = np.array([c.point for c in contacts])
-        forces = np.array([c.force for c in contacts])
-        _, _, triangles = trimesh.proximity.closest_point(self.model.mesh, points)
-        faces, inverse = np.unique(np.asarray(triangles, dtype=np.int64), return_inverse=True)
-        weights = np.bincount(inverse.reshape(-1), weights=forces, minlength=len(faces))
-        if weights.sum() <= 0:
-            weights = np.ones(len(faces))
-        return faces, weights
+
+def touched_faces(mesh: trimesh.Trimesh, points: Sequence[np.ndarray], forces: Sequence[float]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of `mesh` nearest to contact points (its frame) and the summed normal force on each (uniform
+    weights when no contact carried force): a `GraspOutcome`'s `touched_faces` and `touched_weights`."""
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0)
+    _, _, triangles = trimesh.proximity.closest_point(mesh, np.asarray(points, dtype=np.float64))
+    faces, inverse = np.unique(np.asarray(triangles, dtype=np.int64), return_inverse=True)
+    weights = np.bincount(inverse.reshape(-1), weights=np.asarray(forces, dtype=np.float64), minlength=len(faces))
+    if weights.sum() <= 0:
+        weights = np.ones(len(faces))
+    return faces, weights
 
 
 def _moved(T_a: np.ndarray, T_b: np.ndarray, point: np.ndarray | None = None) -> tuple[float, float]:

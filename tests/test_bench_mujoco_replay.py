@@ -1,12 +1,14 @@
 """bench/bench_mujoco_replay.py: a twin grasp replayed in MuJoCo."""
 
 import json
+from dataclasses import asdict
 
 import numpy as np
 import pytest
 
 from bench.bench_mujoco_replay import main, parse_requests, replay
 from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85
+from sim.evaluate.config import RunConfig
 from sim.primitives import primitive_object, top_down_grasp
 
 
@@ -44,7 +46,8 @@ def test_requests_parse_and_bad_ones_are_one_sentence(tmp_path, capsys):
     assert parse_requests("knife_chef:blade, mug_classic:handle") == [("knife_chef", "blade"), ("mug_classic", "handle")]
     with pytest.raises(ValueError, match="OBJECT:PART"):
         parse_requests("knife_chef")
-    (tmp_path / "run.json").write_text(json.dumps({"embodiment": "arm"}))
+    run = RunConfig(methods=["oracle"], objects=["knife_chef"], seeds=[0], embodiment="arm")
+    (tmp_path / "run.json").write_text(json.dumps(asdict(run)))
     (tmp_path / "trials.jsonl").write_text("")
     for argv, words in ((["--requests", "knife_chef"], "OBJECT:PART"), (["--requests", "knife_chef:lid"], "no part"),
                         (["--requests", "no_such:blade"], "no twin object"),
