@@ -8,7 +8,7 @@ import trimesh
 
 from seggrasp.cell import FAILURES, GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, table_plane_in_object_frame
-from seggrasp.grasp import AntipodalSampler
+from seggrasp.grasp import AntipodalSampler, GraspSet
 from seggrasp.grasp.antipodal import AntipodalConfig
 from seggrasp.grasp.feasibility import Feasibility, judge_requests
 from seggrasp.grasp.footprint import PadFootprint
@@ -114,3 +114,35 @@ def test_a_collar_over_half_the_pads_is_feasible_though_the_ranking_margin_would
     assert widened.margin > 0
     shares = widened.on(mesh).pad_means(grasps, collar.astype(np.float64)[:, None])[:, :, 0].min(axis=1)
     assert shares.max() < widened.min_share
+
+
+def test_a_part_only_the_fingertips_ends_land_on_is_infeasible_and_the_reason_says_where_the_pads_land() -> None:
+    # a block (label 1) 30 mm wide with upright sides up to 5 mm, then sloping in to 20 mm at its top (10 mm), under a
+    # 16 mm wide one (label 0): pads ending over the slope have it under them, but the fingertips land on it first
+    corners = [(x, y, z) for x in (-0.02, 0.02) for y, z in ((-0.015, 0.0), (0.015, 0.0), (-0.015, 0.005),
+                                                             (0.015, 0.005), (-0.01, 0.01), (0.01, 0.01))]
+    low = trimesh.convex.convex_hull(np.array(corners))
+    high = trimesh.creation.box((0.040, 0.016, 0.030))
+    high.apply_translation([0.0, 0.0, 0.025])
+    mesh = trimesh.util.concatenate([low, high])
+    labels = np.r_[np.ones(len(low.faces), dtype=np.int64), np.zeros(len(high.faces), dtype=np.int64)]
+    hand, config = ROBOTIQ_2F85, AntipodalConfig.for_hand(ROBOTIQ_2F85)
+    poses = np.repeat(np.eye(4)[None], 2, axis=0)
+    poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # down, closing along y
+    # the pads end over the slope (9.5 mm up) or 2 mm up the upright sides
+    poses[:, 2, 3] = [hand.pad_half_length + 0.0095, hand.pad_half_length + 0.002]
+    contacts = np.array([[[0.0, -0.0102, 0.0098], [0.0, 0.0102, 0.0098]],
+                         [[0.0, -0.015, 0.0035], [0.0, 0.015, 0.0035]]])
+    grasps = GraspSet(poses, [0.0205, 0.030], [0.9, 0.5], contacts)
+    plane = table_plane_in_object_frame(mesh, np.eye(4))
+
+    def judged(index: list[int]) -> Feasibility:
+        return judge_requests([1], ["top", "block"], hand, config, mesh, labels, grasps.subset(np.array(index)),
+                              PadFootprint(gripper=hand), plane)[1]
+
+    tips = judged([0])
+    assert not tips.feasible
+    assert tips.reason.startswith("block: where the pads' footprint is mostly on it, their faces first land on it "
+                                  "for at most 0 %"), tips.reason
+    assert "fingertips' ends" in tips.reason and "they need 50 %" in tips.reason
+    assert judged([0, 1]).feasible

@@ -92,6 +92,57 @@ def test_grasps_whose_pads_press_on_the_part_come_before_those_on_a_wider_neighb
     np.testing.assert_allclose(surface.pad_means(far, (labels == 0).astype(float)[:, None])[:, :, 0], 1.0)
 
 
+def _across(xs: list[float], z: float, width: float) -> GraspSet:
+    """Grasps coming straight down to height `z`, closing along y across a bar on the x axis, centred at `xs`."""
+    poses = np.repeat(np.eye(4)[None], len(xs), axis=0)
+    poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    poses[:, :3, 3] = [[x, 0.0, z] for x in xs]
+    contacts = np.array([[[x, -width / 2, z], [x, width / 2, z]] for x in xs])
+    return GraspSet(poses, [width] * len(xs), np.linspace(0.9, 0.5, len(xs)), contacts)
+
+
+def test_a_neighbour_a_millimetre_prouder_takes_what_the_pads_first_land_on() -> None:
+    # a 10 mm bar (label 0) ending in a 12 mm collar (label 1): the collar stands 1 mm proud on each side, within
+    # the footprint's 2 mm tolerance but beyond the 0.5 mm of a first touch
+    bar = trimesh.creation.box((0.10, 0.010, 0.010))
+    collar = trimesh.creation.box((0.010, 0.012, 0.012))
+    collar.apply_translation([0.055, 0.0, 0.0])
+    mesh = trimesh.util.concatenate([bar, collar])
+    labels = np.r_[np.zeros(len(bar.faces), int), np.ones(len(collar.faces), int)]
+    grasps = _across([0.042, 0.0], z=0.0, width=0.012)  # the first one's pads (x 31-53 mm) reach 3 mm of collar
+    surface = PadFootprint().on(mesh)
+    on_bar = labels == 0
+    footprint = surface.pad_means(grasps, on_bar.astype(float)[:, None])[:, :, 0]
+    assert (footprint[0] > 0.5).all()  # mostly bar under the pads
+    np.testing.assert_allclose(surface.first_touch_shares(grasps, on_bar)[0], 0.0)  # but they land on the collar
+    np.testing.assert_allclose(surface.part_shares(grasps, on_bar), [[0.0, 0.0], [1.0, 1.0]])
+    # so the grasp in the bar's middle comes first though the sampler scored the other higher
+    assert select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())[0].tolist() == [1, 0]
+
+
+def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads() -> None:
+    # a 30 mm wide block 10 mm tall (label 1) under a 20 mm wide block (label 0); the 2F-85's fingertips reach
+    # 1.25 mm past its pads' ends
+    low = trimesh.creation.box((0.040, 0.030, 0.010))
+    low.apply_translation([0.0, 0.0, 0.005])
+    high = trimesh.creation.box((0.040, 0.020, 0.030))
+    high.apply_translation([0.0, 0.0, 0.025])
+    mesh = trimesh.util.concatenate([low, high])
+    on_low = np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+    hand = PadFootprint().gripper
+    tips_only = hand.pad_half_length + 0.010 + 0.0005  # the pads end 0.5 mm above the block, the tips 0.75 mm into it
+    pads_on = hand.pad_half_length + 0.005  # the pads' last 5 mm reach down its sides
+    grasps = _across([0.0, 0.0], z=0.0, width=0.030)
+    grasps.poses[:, 2, 3] = [tips_only, pads_on]
+    surface = PadFootprint().on(mesh)
+    footprint = surface.pad_means(grasps, on_low.astype(float)[:, None])[:, :, 0]
+    np.testing.assert_allclose(footprint, 1.0)  # the footprint, 3 mm wider than the pads, sees only the block
+    landed = surface.first_touch_shares(grasps, on_low)
+    np.testing.assert_allclose(landed[0], 0.0)
+    # the pads' faces press on 5 mm of its sides, the fingertips' ends on the 1.25 mm below: about 80 % pressed
+    assert (landed[1] > 0.7).all() and (landed[1] < 0.9).all()
+
+
 @pytest.mark.slow
 def test_sampled_grasps_keep_their_pads_on_their_own_part(hammer) -> None:
     mesh, labels = hammer

@@ -3,13 +3,15 @@
 A request is feasible when one of the episode's grasp candidates (the sampler's set, which already keeps only
 poses whose width fits the stroke and whose fingers, palm and wrist clear the table and the object) has both
 planned contacts on faces of the part AND pads that each press on the part over at least the footprint's
-`min_share` (`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). The share
+`min_share`, both of the surface under them and of what their faces first land on (`PadSurface.part_shares`;
+`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). The share
 is measured under the pads themselves: the footprint's `margin` widens them only for ranking (a thin part, an
 eyeglass temple, fills none of the widened pads' share yet lifts by it in the twin). When none
 does, the part's geometry names why, in one sentence with measured numbers, the first that applies of:
 
 1. the part has no face (nothing labelled as it);
-2. candidates touch it, but their pads press on it less than `min_share`;
+2. candidates touch it, but their pads press on it less than `min_share`, or, where they do, their faces first
+   land elsewhere (a prouder neighbour, or the part meets only the fingertips' ends);
 3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
    `pinch_min_band`);
 4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
@@ -66,32 +68,41 @@ def judge_requests(
     parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
-        is_part = (local == j).astype(np.float64)[:, None]
-        if len(best[j]) and (surface.pad_means(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
+        is_part = local == j
+        if len(best[j]) and (surface.part_shares(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
-        on_part = np.flatnonzero(parts == j)
-        share = surface.pad_means(grasps.subset(on_part), is_part)[:, :, 0].min(axis=1) if len(on_part) else None
-        if share is not None and share.max() >= footprint.min_share:  # a candidate ranked lower holds it
+        on_part = grasps.subset(np.flatnonzero(parts == j))
+        shares = None
+        if len(on_part):  # per candidate on the part, its pads' smaller share: under the footprint, first landed on
+            shares = np.stack([surface.pad_means(on_part, is_part[:, None].astype(np.float64))[:, :, 0].min(axis=1),
+                               surface.first_touch_shares(on_part, is_part).min(axis=1)])
+        if shares is not None and shares.min(axis=0).max() >= footprint.min_share:  # a lower-ranked one holds it
             judged[k] = Feasibility(True)
         else:
-            judged[k] = Feasibility(False, _reason(prompts[k], local == j, share, hand, config, mesh, footprint,
+            judged[k] = Feasibility(False, _reason(prompts[k], is_part, shares, hand, config, mesh, footprint,
                                                    table_plane))
     return judged
 
 
 def _reason(
-    name: str, faces: np.ndarray, share: np.ndarray | None, hand: Hand, config: AntipodalConfig,
+    name: str, faces: np.ndarray, shares: np.ndarray | None, hand: Hand, config: AntipodalConfig,
     mesh: trimesh.Trimesh, footprint: PadFootprint, table_plane: np.ndarray,
 ) -> str:
-    """The sentence for an infeasible part (module docstring); `share`: per candidate with both contacts on the
-    part, the smaller share of the part under its two pads (None: no such candidate)."""
+    """The sentence for an infeasible part (module docstring); `shares` (2, C): per candidate with both contacts on
+    the part, the smaller share of the part under its two pads' footprint and in what they first land on (None: no
+    such candidate)."""
     if not faces.any():
         return f"{name}: no face of the mesh is labelled as it"
-    if share is not None:
-        return (f"{name}: the pads press on it for at most {100 * share.max():.0f} % of their footprint; "
-                f"they need {100 * footprint.min_share:.0f} %")
+    if shares is not None:
+        under, landed = shares
+        need = f"they need {100 * footprint.min_share:.0f} %"
+        if under.max() < footprint.min_share:
+            return f"{name}: the pads press on it for at most {100 * under.max():.0f} % of their footprint; {need}"
+        return (f"{name}: where the pads' footprint is mostly on it, their faces first land on it for at most "
+                f"{100 * landed[under >= footprint.min_share].max():.0f} % (a prouder neighbour, or only the "
+                f"fingertips' ends, meet it first); {need}")
     vertices = mesh.vertices[np.unique(mesh.faces[faces])]
     height = float((vertices @ table_plane[:3] + table_plane[3]).max())
     pinch = config.pinch_table_clearance + config.pinch_min_band

@@ -7,6 +7,10 @@ by `margin` on every side, because a neighbouring part that stands proud within 
 takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
 just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
 over those points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
+A rigid finger, though, pushes only on what it first lands on: `first_touch_shares` reads the part's share there
+(within `first_touch_tolerance`, the fingertip beyond the pad included but holding nothing), and `part_shares`, the
+smaller of the two, is what selection and the feasibility judgement compare with `min_share` (a kettle's body
+bulges under the lid's rim, and only the fingertips' ends reach it).
 """
 
 from __future__ import annotations
@@ -38,6 +42,7 @@ class PadFootprint:
 
     margin: float = 0.003
     tolerance: float = 0.002
+    first_touch_tolerance: float = 0.0005
     point_spacing: float = 0.0015
     min_points: int = 2000
     max_points: int = 40000
@@ -46,8 +51,8 @@ class PadFootprint:
     gripper: Hand = field(default=ROBOTIQ_2F85, repr=False)
 
     def __post_init__(self) -> None:
-        if min(self.margin, self.tolerance) < 0 or self.point_spacing <= 0:
-            raise ValueError(f"invalid pad footprint {self}: margin and tolerance must be >= 0, point_spacing > 0")
+        if min(self.margin, self.tolerance, self.first_touch_tolerance) < 0 or self.point_spacing <= 0:
+            raise ValueError(f"invalid pad footprint {self}: margin and tolerances must be >= 0, point_spacing > 0")
         if not 1 <= self.min_points <= self.max_points or not 0 < self.min_share <= 1:
             raise ValueError(f"invalid pad footprint {self}: need 1 <= min_points <= max_points, min_share in (0, 1]")
 
@@ -73,10 +78,8 @@ class PadSurface:
         half_width = fp.gripper.pad_half_width + fp.margin
         half_length = fp.gripper.pad_half_length + fp.margin
         openings = fp.gripper.pre_grasp_opening(grasps.widths)
-        reach = np.sqrt((0.5 * openings) ** 2 + half_width**2 + half_length**2)
         touched = []
-        for pose, opening, radius in zip(grasps.poses, openings, reach):
-            near = np.asarray(self._tree.query_ball_point(pose[:3, 3], radius), dtype=np.int64)
+        for pose, opening, near in zip(grasps.poses, openings, self._near(grasps, margin=fp.margin)):
             if len(near) == 0:  # the pads are nowhere near the surface
                 touched.append((near, near))
                 continue
@@ -84,6 +87,15 @@ class PadSurface:
                                                half_length, fp.tolerance)
             touched.append((self.point_faces[near[low_pad[0]]], self.point_faces[near[high_pad[0]]]))
         return touched
+
+    def _near(self, grasps: GraspSet, margin: float) -> list[np.ndarray]:
+        """Per grasp, the sample points within reach of its fingers (pads widened by `margin`, and the tips)."""
+        hand = self.footprint.gripper
+        openings = hand.pre_grasp_opening(grasps.widths)
+        length = max(hand.pad_half_length, hand.tip_beyond_origin) + margin
+        reach = np.sqrt((0.5 * openings) ** 2 + (hand.pad_half_width + margin) ** 2 + length**2)
+        return [np.asarray(self._tree.query_ball_point(pose[:3, 3], radius), dtype=np.int64)
+                for pose, radius in zip(grasps.poses, reach)]
 
     def pad_means(self, grasps: GraspSet, face_values: np.ndarray) -> np.ndarray:
         """(N, 2, P) per grasp and pad the mean of `face_values` (F, P) over the surface the pad closes on (the
@@ -97,3 +109,32 @@ class PadSurface:
                 if len(faces):
                     means[i, pad] = face_values[faces].mean(axis=0)
         return means
+
+    def first_touch_shares(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
+        """(N, 2) per grasp and finger the share of a part (`is_part`, one bool per face) in what the rigid finger
+        first lands on as it closes (within `first_touch_tolerance`; the pad and the fingertip beyond it), counting
+        only points the pad's face itself presses: a part that stands back a millimetre from a prouder neighbour,
+        or that only the fingertip's rim reaches, takes none of the grip (the face nearest the contact decides where
+        the finger touches none of the sample points)."""
+        hand = self.footprint.gripper
+        is_part = np.asarray(is_part, dtype=bool)
+        shares = is_part[contact_faces(grasps, self.mesh)].astype(np.float64)  # (N, 2)
+        openings = hand.pre_grasp_opening(grasps.widths)
+        for i, (pose, opening, near) in enumerate(zip(grasps.poses, openings, self._near(grasps, margin=0.0))):
+            if len(near) == 0:
+                continue
+            fingers = pad_touches(pose[None], np.array([opening]), self.points[near], hand.pad_half_width,
+                                  hand.pad_half_length, self.footprint.first_touch_tolerance,
+                                  tip=hand.tip_beyond_origin)
+            pressed = is_part[self.point_faces[near]] & (fingers[2][0] <= hand.pad_half_length)
+            for finger, touching in enumerate(fingers[:2]):
+                if touching[0].any():
+                    shares[i, finger] = pressed[touching[0]].mean()
+        return shares
+
+    def part_shares(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
+        """(N, 2) per grasp and pad the share of a part (`is_part`, one bool per face) in what the pad presses on:
+        the smaller of its share under the footprint (`pad_means`) and of what it first lands on
+        (`first_touch_shares`)."""
+        footprint = self.pad_means(grasps, np.asarray(is_part, dtype=np.float64)[:, None])[:, :, 0]
+        return np.minimum(footprint, self.first_touch_shares(grasps, is_part))

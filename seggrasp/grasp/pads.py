@@ -42,12 +42,14 @@ def sweep(
 
 
 def pad_touches(
-    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float
+    poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float, tolerance: float,
+    tip: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Which points of `cloud` each pad closes on, per pose: the points its sweep (`swept_points`, a pad of
-    2 half_width x 2 half_length closing from `openings`) holds within `tolerance` of its first touch. Returns the
-    -x pad's and the +x pad's masks (G, M) and the points' z in each gripper frame (G, M)."""
-    x, z, inside = swept_points(poses, openings, cloud, half_width, -half_length, half_length)
+    2 half_width x 2 half_length closing from `openings`, reaching `tip` past the origin along z when given, the
+    finger's end below the pad) holds within `tolerance` of its first touch. Returns the -x pad's and the +x pad's
+    masks (G, M) and the points' z in each gripper frame (G, M)."""
+    x, z, inside = swept_points(poses, openings, cloud, half_width, -half_length, half_length if tip is None else tip)
     masks = []
     for sign in (-1.0, 1.0):  # the -x pad touches the lowest x, the +x pad the highest
         first = np.where(inside, sign * x, -np.inf).max(axis=1, keepdims=True)

@@ -3,9 +3,10 @@
 A grasp's part is the label of the mesh face nearest to its contact points (the paper). We look up BOTH contacts
 and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
 never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
-the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part come first
-(`seggrasp.grasp.footprint`: two contacts on a wine glass's stem say nothing of the bowl under the pads' edge); the
-others fill the top-k only where too few do, so the check never leaves a request with fewer grasps.
+the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part, under them and where
+they first land (`seggrasp.grasp.footprint`: two contacts on a wine glass's stem say nothing of the bowl under the
+pads' edge), come first; the others fill the top-k only where too few do, so the check never leaves a request
+with fewer grasps.
 """
 
 from __future__ import annotations
@@ -61,14 +62,14 @@ def select_per_prompt(
     chosen = []
     for k in range(n_prompts):
         ranked = select_on_part(grasps, parts, k, top_k=max(len(grasps), 1))
-        is_part = (labels == k).astype(np.float64)[:, None]
+        is_part = labels == k
         pressing: list[int] = []
         others: list[int] = []
         for start in range(0, len(ranked), FOOTPRINT_CHUNK):
             if len(pressing) >= top_k:
                 break
             block = ranked[start : start + FOOTPRINT_CHUNK]
-            on_part = (surface.pad_means(grasps.subset(block), is_part)[:, :, 0] >= footprint.min_share).all(axis=1)
+            on_part = (surface.part_shares(grasps.subset(block), is_part) >= footprint.min_share).all(axis=1)
             pressing += block[on_part].tolist()
             others += block[~on_part].tolist()
         chosen.append(np.asarray((pressing + others)[:top_k], dtype=np.int64))
