@@ -10,7 +10,7 @@ scene seed, the hand's sampler at the hand's grip force) and every prompt is jud
 (`relaxed_config`: a pinch may touch the part over `RELAXED_PINCH_BAND` of its pads, the contact distance may come
 within `RELAXED_WIDTH_MARGIN` of the stroke, the fingers as close to the table as the cell lets them, a sweep's pads
 may meet surface up to `RELAXED_FACING_DEG` off, pinches may tilt `RELAXED_PINCH_TILT_DEG`, twice the surface
-samples) whose two planned contacts lie on the part - the pads' footprint share is ignored - is executed anyway
+samples) whose two planned contacts lie on the part - what its pads press on is ignored - is executed anyway
 from a reset of the scene: the first of the best `MIN_REACH_DEPTH` the cell would execute (`Episode.reaches`),
 scored as the benchmark scores a slot (`Episode.execute`: lifted AND the pads touched mostly the part).
 
@@ -26,7 +26,7 @@ import os
 import sys
 import time
 from collections import Counter, defaultdict
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -65,6 +65,7 @@ CLEARANCES = ("cell", "sampler")
 REASON_KINDS = (
     ("no face", "no face of the mesh"),
     ("pads' share", "the pads press on it"),
+    ("pads land elsewhere", "where the pads' footprint is mostly on it"),
     ("too low", "stands at most"),
     ("lies flat", "lies flat"),
     ("too wide", "narrowest section"),
@@ -94,7 +95,7 @@ class Request:
     tilt_deg: float | None = None  # the approach's angle from straight down
     contact_height: float | None = None  # the planned contacts' mean height above the table (m)
     # the executed grasp measured against the strict judgement (`Diagnosis`)
-    share: float | None = None  # the smaller share of the part under its two pads (the footprint's)
+    share: float | None = None  # the smaller share of the part its two pads press on (the judgement's)
     band: float | None = None  # how far along the pads the surface they close on reaches (m, the smaller pad)
     tip_clearance: float | None = None  # the lowest finger box corner above the table at the pre-grasp opening (m)
     in_strict: bool | None = None  # the strict sampler has a grasp on the part at (nearly) the same pose
@@ -188,21 +189,21 @@ def judge_episode(episode: Episode, robot: str, grip_force: float, clearance: st
 
 
 class Diagnosis:
-    """Measures an executed relaxed grasp (object frame) against the strict judgement of its episode: the pads'
-    footprint share of the part, the pad band, the fingers' lowest point above the table, and whether the strict
-    sampler has a grasp on the part within `STRICT_MATCH` of its pose."""
+    """Measures an executed relaxed grasp (object frame) against the strict judgement of its episode: the share of
+    the part its pads press on (`PadSurface.part_shares`), the pad band, the fingers' lowest point above the table,
+    and whether the strict sampler has a grasp on the part within `STRICT_MATCH` of its pose."""
 
     def __init__(self, episode: Episode, plane: np.ndarray) -> None:
         self.episode, self.plane = episode, plane
         mesh = episode.observation.mesh
-        self.surface = episode.footprint.on(mesh)
+        self.surface = replace(episode.footprint, margin=0.0).on(mesh)  # the judgement's bare pads
         self.cloud, _ = trimesh.sample.sample_surface(mesh, BAND_SAMPLES, seed=0)
         strict = episode.grasps()
         self.strict, self.strict_parts = strict, assign_parts(strict, mesh, episode.truth_on_mesh)
 
     def measure(self, request: Request, grasp, k: int) -> None:
         hand, labels = self.episode.hand, self.episode.truth_on_mesh
-        request.share = float(self.surface.pad_means(grasp, (labels == k).astype(np.float64)[:, None])[0, :, 0].min())
+        request.share = float(self.surface.part_shares(grasp, labels == k)[0].min())
         opening = hand.pre_grasp_opening(grasp.widths)
         request.band = float(pad_bands(grasp.poses, opening, self.cloud, hand.pad_half_width, hand.pad_half_length,
                                        AntipodalConfig().pinch_band_tolerance)[0])
@@ -362,7 +363,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
             lines.append(f"| {category} | {robot} | {c.judged} | {c.cells()} |")
     lines += ["", "## Per reason kind and robot", "",
               ("The kind is the judgement's reason: no face labelled; pads press on it under the footprint's "
-               "share; too low for a pinch; lying flat (too little side above the fingertips); narrowest section "
+               "share; where they do, their faces first land elsewhere (a prouder neighbour, or only the "
+               "fingertips' ends reach it); too low for a pinch; lying flat (too little side above the fingertips); narrowest section "
                "wider than the stroke allows; no collision-free pose."), "",
               f"| reason | robot | {COUNT_HEADER} |", "|---|---|---|---|---|---|---|---|"]
     infeasible = [r for r in requests if not r.feasible]
@@ -396,7 +398,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     if lifted:
         footprint = PadFootprint()
         lines += [("Each executed relaxed grasp that lifted the object by the part, measured against the strict "
-                   "judgement: the smaller share of the part under its pads (the footprint's; the judgement needs "
+                   "judgement: the smaller share of the part its pads press on (under them and where they first "
+                   "land, `PadSurface.part_shares`; the judgement needs "
                    f"{100 * footprint.min_share:.0f} %), how far along the pads the surface they close on reaches "
                    "(a pinch needs the strict pinch band), the fingers' lowest point above the table at the "
                    "pre-grasp opening, and whether the strict sampler had a grasp on the part within "
