@@ -4,9 +4,11 @@ failures by name, and the paired difference per request with its standard error 
     python bench/bench_compare_runs.py --before /tmp/lead/s6 --after /tmp/lead/p1/s7 --methods oracle,seggrasp \
         --label "fingertip pinches" --out docs/results/twin-physics-pinch-seeds0-4.md
 
-Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders); a run on several robot systems
-(`--robots`) is compared per system both ran, one section per method and system. A request is one (seed, object, prompt);
-its Part Sel. and Suc. are the shares of its top-k slots (a slot without a grasp is a miss). The paired difference
+Reads the runs' `trials.jsonl` (`python -m sim.evaluate` output folders; each side may be several runs, e.g. one per
+robot system); runs on several robot systems (`--robots`) are compared per system both sides ran, one section per
+method and system. A request is one (seed, object, prompt); its Part Sel. and Suc. are the shares of its top-k
+slots (a slot without a grasp is a miss). Where a run judged requests infeasible, Suc. over the slots of those it
+judged feasible follows, with the requests whose judgement changed. The paired difference
 is taken over the requests both runs have; its standard error is given over requests and with the objects as
 clusters (a request's slots and an object's prompts share its shape, so the clustered one is the honest one).
 """
@@ -78,19 +80,46 @@ def compare(before: list[dict], after: list[dict], method: str, robot: str | Non
     fb, fa = failures(before), failures(after)
     lines += ["", "Failed slots by name, before → after: "
               + ", ".join(f"{name} {fb[name]} → {fa[name]}" for name in sorted(set(fb) | set(fa))) + "."]
+    return lines + feasible_lines(before, after, method, shared)
+
+
+def feasible_lines(before: list[dict], after: list[dict], method: str, shared: set[tuple]) -> list[str]:
+    """Markdown lines on the requests (of `shared`) each run judged feasible: Suc. over their slots per run (the
+    oracle's is the twin's fidelity measure), and the requests whose judgement changed."""
+    judged = []
+    for records in (before, after):
+        mine = [r for r in records if r["method"] == method and (seed_of(r), r["object_id"], r["prompt"]) in shared]
+        slots = [r for r in mine if not r.get("infeasible")]
+        infeasible = {(r["object_id"], r["prompt"], seed_of(r)) for r in mine if r.get("infeasible")}
+        judged.append((slots, infeasible))
+    if not any(infeasible for _, infeasible in judged):
+        return []
+    cells = [f"{sum(r['success'] for r in slots)}/{len(slots)} = {sum(r['success'] for r in slots) / len(slots):.3f}"
+             if slots else "-" for slots, _ in judged]
+    lines = ["", f"Suc. over the slots of the requests each run judged feasible: before {cells[0]}, after {cells[1]}; "
+             f"requests judged infeasible {len(judged[0][1])} → {len(judged[1][1])}."]
+    (_, was), (_, now) = judged
+    for name, changed in (("Newly infeasible", now - was), ("Newly feasible", was - now)):
+        if changed:
+            seeds = defaultdict(list)
+            for obj, prompt, seed in sorted(changed):
+                seeds[(obj, prompt)].append(str(seed))
+            lines.append(f"{name}: " + ", ".join(f"{obj} {prompt} (seeds {','.join(s)})"
+                                                  for (obj, prompt), s in seeds.items()) + ".")
     return lines
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--before", type=Path, required=True, help="sim.evaluate output folder before the change")
-    parser.add_argument("--after", type=Path, required=True, help="sim.evaluate output folder after the change")
+    parser.add_argument("--before", type=Path, nargs="+", required=True,
+                        help="sim.evaluate output folder(s) before the change (several: e.g. one per robot system)")
+    parser.add_argument("--after", type=Path, nargs="+", required=True, help="the same after the change")
     parser.add_argument("--methods", default="oracle", help="comma-separated; one section each")
     parser.add_argument("--label", default="the change", help="what changed, for the page's title")
     parser.add_argument("--out", type=Path, help="write the markdown here (atomically); default: print it")
     args = parser.parse_args(argv)
     try:
-        before, after = read_trials(args.before), read_trials(args.after)
+        before, after = ([r for run in runs for r in read_trials(run)] for runs in (args.before, args.after))
         robots = sorted({robot_of(r) for r in before} & {robot_of(r) for r in after})
         if not robots:
             raise ValueError("the two runs share no robot system")
@@ -103,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     command = shlex.join(["python", "bench/bench_compare_runs.py", *(argv if argv is not None else sys.argv[1:])])
     page = "\n".join([f"# Before and after {args.label}", "", f"Written by `{command}`.",
-                      f"Before: `{args.before}`; after: `{args.after}`.", "", *lines])
+                      f"Before: {', '.join(f'`{f}`' for f in args.before)}; after: "
+                      f"{', '.join(f'`{f}`' for f in args.after)}.", "", *lines])
     if args.out:
         atomic_write_text(args.out, page)
     print(page)

@@ -63,3 +63,31 @@ def test_a_run_on_two_robot_systems_is_compared_per_system(tmp_path):
     rows = [next(line for line in s.splitlines() if line.startswith("| Suc. (all slots)")) for s in sections]
     assert "| 1.000 | 0.500 | -0.500 ±" in rows[0]
     assert "| 0.000 | 1.000 | +1.000 ±" in rows[1]
+
+
+def test_suc_over_feasible_requests_and_the_requests_whose_judgement_changed(tmp_path):
+    before = _run(tmp_path / "before", {("kettle_a", "body"): 0, ("kettle_a", "handle"): 4})
+    after = _run(tmp_path / "after", {("kettle_a", "body"): 0, ("kettle_a", "handle"): 4})
+    rows = [json.loads(line) for line in (after / "trials.jsonl").read_text().splitlines()]
+    for r in rows:  # the body is judged infeasible after the change: every slot of it, none executed
+        if r["prompt"] == "body":
+            r.update(infeasible=True, failure="infeasible")
+    (after / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    page = tmp_path / "page.md"
+    assert bench_compare_runs.main(["--before", str(before), "--after", str(after), "--out", str(page)]) == 0
+    text = page.read_text()
+    assert ("Suc. over the slots of the requests each run judged feasible: before 4/8 = 0.500, after 4/4 = 1.000; "
+            "requests judged infeasible 0 → 1.") in text
+    assert "Newly infeasible: kettle_a body (seeds 0)." in text
+    assert "Newly feasible" not in text
+
+
+def test_each_side_may_be_several_runs_one_per_robot_system(tmp_path):
+    ur5 = _run(tmp_path / "ur5", {}, robots={"ur5": {("mug_a", "handle"): 0}})
+    panda = _run(tmp_path / "panda", {}, robots={"panda": {("mug_a", "handle"): 4}})
+    after = _run(tmp_path / "after", {}, robots={"ur5": {("mug_a", "handle"): 4}, "panda": {("mug_a", "handle"): 2}})
+    page = tmp_path / "page.md"
+    assert bench_compare_runs.main(["--before", str(ur5), str(panda), "--after", str(after), "--out", str(page)]) == 0
+    sections = page.read_text().split("## ")[1:]
+    assert [s.splitlines()[0] for s in sections] == ["`oracle` on panda", "`oracle` on ur5"]
+    assert f"Before: `{ur5}`, `{panda}`; after: `{after}`." in page.read_text()
