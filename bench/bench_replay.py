@@ -24,7 +24,7 @@ import numpy as np
 from seggrasp.io import atomic_write_text
 from seggrasp.objects import load_asset_set
 from sim.cell import SimCell
-from sim.evaluate.records import JsonLines, seed_of
+from sim.evaluate.records import JsonLines, robot_of, seed_of
 from sim.gripper import GripperSettings
 from sim.world import PhysicsSettings
 
@@ -52,23 +52,25 @@ def contact_log_name(row: dict, iterations: int, force: float) -> str:
 
 def replay(model, rows: list[dict], iterations: int, force: float, contacts: Path | None = None
            ) -> tuple[collections.Counter, float, float]:
-    """Outcomes (failure name, "lifted" for success) of the recorded grasps, the median wall time of a trial and the
-    median squeeze the pads delivered at the end of the hold (half the summed normal force of both pads, N; NaN if
-    no grasp was held); with `contacts`, a contact log of each trial is written there (module doc)."""
+    """Outcomes (failure name, "lifted" for success) of the recorded grasps, each on its trial's robot system, the
+    median wall time of a trial and the median squeeze the pads delivered at the end of the hold (half the summed
+    normal force of both pads, N; NaN if no grasp was held); with `contacts`, a contact log of each trial is written
+    there (module doc)."""
     outcomes, times, squeezes = collections.Counter(), [], []
     physics = PhysicsSettings(solver_iterations=iterations, light_object_iterations=None)
-    with SimCell([model], embodiment="arm", seed=0, image_size=(64, 48), physics=physics,
-                 gripper=GripperSettings(force)) as cell:
-        for row in rows:
-            cell.reset(seed=row["scene_seed"], object_id=model.object_id)
-            if contacts is not None:
-                cell.log_contacts_next(contacts / contact_log_name(row, iterations, force))
-            start = time.perf_counter()
-            outcome = cell.execute(np.array(row["T_world_grasp"]), row["width"])
-            times.append(time.perf_counter() - start)
-            outcomes[outcome.failure or "lifted"] += 1
-            if outcome.contact_force > 0:
-                squeezes.append(0.5 * outcome.contact_force)
+    for robot in dict.fromkeys(map(robot_of, rows)):  # each trial on the robot system it ran on
+        with SimCell([model], embodiment="arm", robot=robot, seed=0, image_size=(64, 48), physics=physics,
+                     gripper=GripperSettings(force)) as cell:
+            for row in (r for r in rows if robot_of(r) == robot):
+                cell.reset(seed=row["scene_seed"], object_id=model.object_id)
+                if contacts is not None:
+                    cell.log_contacts_next(contacts / contact_log_name(row, iterations, force))
+                start = time.perf_counter()
+                outcome = cell.execute(np.array(row["T_world_grasp"]), row["width"])
+                times.append(time.perf_counter() - start)
+                outcomes[outcome.failure or "lifted"] += 1
+                if outcome.contact_force > 0:
+                    squeezes.append(0.5 * outcome.contact_force)
     return outcomes, float(np.median(times)), float(np.median(squeezes)) if squeezes else float("nan")
 
 

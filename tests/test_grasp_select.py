@@ -8,6 +8,7 @@ from seggrasp.grasp import AntipodalSampler, GraspSet
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.grasp.learned import GraspPrediction, LearnedGraspGenerator
 from seggrasp.grasp.select import assign_parts, contact_faces, select_on_part, select_per_prompt
+from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85
 
 
 @pytest.fixture(scope="module")
@@ -141,6 +142,23 @@ def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads() -> N
     np.testing.assert_allclose(landed[0], 0.0)
     # the pads' faces press on 5 mm of its sides, the fingertips' ends on the 1.25 mm below: about 80 % pressed
     assert (landed[1] > 0.7).all() and (landed[1] < 0.9).all()
+
+
+def test_a_fingertip_shorter_than_the_first_touch_tolerance_is_pad() -> None:
+    # the Franka Hand's finger reaches 0.1 mm past its pad (the 2F-85's 1.25 mm): a block's top edge landed on
+    # 0.05 mm past the pad's end is pressed by the Franka's pad face, and not by the 2F-85's fingertip
+    low = trimesh.creation.box((0.040, 0.030, 0.010))
+    low.apply_translation([0.0, 0.0, 0.005])
+    high = trimesh.creation.box((0.040, 0.020, 0.030))
+    high.apply_translation([0.0, 0.0, 0.025])
+    mesh = trimesh.util.concatenate([low, high])
+    on_low = np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+    for hand, expected in ((FRANKA_HAND, 1.0), (ROBOTIQ_2F85, 0.0)):
+        grasps = _across([0.0], z=0.010 + hand.pad_half_length + 0.00005, width=0.030)
+        if hand is ROBOTIQ_2F85:  # its tip reaches 1.25 mm: land 0.65 mm past the pad's end, as far inside the tip
+            grasps.poses[:, 2, 3] = 0.010 + hand.pad_half_length + 0.00065
+        shares = PadFootprint(gripper=hand).on(mesh).first_touch_shares(grasps, on_low)
+        np.testing.assert_allclose(shares, expected, err_msg=hand.name)
 
 
 @pytest.mark.slow

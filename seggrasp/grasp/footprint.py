@@ -116,7 +116,11 @@ class PadSurface:
         only points the pad's face itself presses: a part that stands back a millimetre from a prouder neighbour,
         or that only the fingertip's rim reaches, takes none of the grip (the face nearest the contact decides where
         the finger touches none of the sample points)."""
-        hand = self.footprint.gripper
+        hand, tolerance = self.footprint.gripper, self.footprint.first_touch_tolerance
+        # a tip beyond the pad shorter than the first touch's own resolution cannot be told from the pad's end (the
+        # Franka Hand's finger is pad to 0.1 mm of its end; the 2F-85's finger reaches 1.25 mm past its pad)
+        pad_end = hand.pad_half_length if hand.tip_beyond_origin - hand.pad_half_length >= tolerance else \
+            max(hand.pad_half_length, hand.tip_beyond_origin)
         is_part = np.asarray(is_part, dtype=bool)
         shares = is_part[contact_faces(grasps, self.mesh)].astype(np.float64)  # (N, 2)
         openings = hand.pre_grasp_opening(grasps.widths)
@@ -124,9 +128,8 @@ class PadSurface:
             if len(near) == 0:
                 continue
             fingers = pad_touches(pose[None], np.array([opening]), self.points[near], hand.pad_half_width,
-                                  hand.pad_half_length, self.footprint.first_touch_tolerance,
-                                  tip=hand.tip_beyond_origin)
-            pressed = is_part[self.point_faces[near]] & (fingers[2][0] <= hand.pad_half_length)
+                                  hand.pad_half_length, tolerance, tip=hand.tip_beyond_origin)
+            pressed = is_part[self.point_faces[near]] & (fingers[2][0] <= pad_end)
             for finger, touching in enumerate(fingers[:2]):
                 if touching[0].any():
                     shares[i, finger] = pressed[touching[0]].mean()
