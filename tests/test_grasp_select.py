@@ -121,15 +121,19 @@ def test_a_neighbour_a_millimetre_prouder_takes_what_the_pads_first_land_on() ->
     assert select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())[0].tolist() == [1, 0]
 
 
-def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads() -> None:
-    # a 30 mm wide block 10 mm tall (label 1) under a 20 mm wide block (label 0); the 2F-85's fingertips reach
-    # 1.25 mm past its pads' ends
+@pytest.fixture(scope="module")
+def two_tier() -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A 30 mm wide block 10 mm tall under a 20 mm wide block: the mesh, and which faces are the lower block's."""
     low = trimesh.creation.box((0.040, 0.030, 0.010))
     low.apply_translation([0.0, 0.0, 0.005])
     high = trimesh.creation.box((0.040, 0.020, 0.030))
     high.apply_translation([0.0, 0.0, 0.025])
-    mesh = trimesh.util.concatenate([low, high])
-    on_low = np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+    return trimesh.util.concatenate([low, high]), np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+
+
+def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads(two_tier) -> None:
+    # the lower block is the part; the 2F-85's fingertips reach 1.25 mm past its pads' ends
+    mesh, on_low = two_tier
     hand = PadFootprint().gripper
     tips_only = hand.pad_half_length + 0.010 + 0.0005  # the pads end 0.5 mm above the block, the tips 0.75 mm into it
     pads_on = hand.pad_half_length + 0.005  # the pads' last 5 mm reach down its sides
@@ -144,15 +148,10 @@ def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads() -> N
     assert (landed[1] > 0.7).all() and (landed[1] < 0.9).all()
 
 
-def test_a_fingertip_shorter_than_the_first_touch_tolerance_is_pad() -> None:
+def test_a_fingertip_shorter_than_the_first_touch_tolerance_is_pad(two_tier) -> None:
     # the Franka Hand's finger reaches 0.1 mm past its pad (the 2F-85's 1.25 mm): a block's top edge landed on
     # 0.05 mm past the pad's end is pressed by the Franka's pad face, and not by the 2F-85's fingertip
-    low = trimesh.creation.box((0.040, 0.030, 0.010))
-    low.apply_translation([0.0, 0.0, 0.005])
-    high = trimesh.creation.box((0.040, 0.020, 0.030))
-    high.apply_translation([0.0, 0.0, 0.025])
-    mesh = trimesh.util.concatenate([low, high])
-    on_low = np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+    mesh, on_low = two_tier
     for hand, expected in ((FRANKA_HAND, 1.0), (ROBOTIQ_2F85, 0.0)):
         grasps = _across([0.0], z=0.010 + hand.pad_half_length + 0.00005, width=0.030)
         if hand is ROBOTIQ_2F85:  # its tip reaches 1.25 mm: land 0.65 mm past the pad's end, as far inside the tip
