@@ -16,16 +16,15 @@ clusters (a request's slots and an object's prompts share its shape, so the clus
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
 
+from bench.bench_lab import command_line, publish  # noqa: E402
 from bench.bench_selection import per_request, read_trials  # noqa: E402
 
-from seggrasp.io import atomic_write_text  # noqa: E402
 from sim.evaluate.records import robot_of, seed_of  # noqa: E402
 
 COLUMNS = {"Part Sel. (all slots)": 0, "Suc. (all slots)": 1, "top-1 Suc.": 3}
@@ -94,8 +93,8 @@ def feasible_lines(before: list[dict], after: list[dict], method: str, shared: s
         judged.append((slots, infeasible))
     if not any(infeasible for _, infeasible in judged):
         return []
-    cells = [f"{sum(r['success'] for r in slots)}/{len(slots)} = {sum(r['success'] for r in slots) / len(slots):.3f}"
-             if slots else "-" for slots, _ in judged]
+    lifted = [sum(r["success"] for r in slots) for slots, _ in judged]
+    cells = [f"{n}/{len(slots)} = {n / len(slots):.3f}" if slots else "-" for n, (slots, _) in zip(lifted, judged)]
     lines = ["", f"Suc. over the slots of the requests each run judged feasible: before {cells[0]}, after {cells[1]}; "
              f"requests judged infeasible {len(judged[0][1])} → {len(judged[1][1])}."]
     (_, was), (_, now) = judged
@@ -130,13 +129,11 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    command = shlex.join(["python", "bench/bench_compare_runs.py", *(argv if argv is not None else sys.argv[1:])])
+    command = command_line("bench_compare_runs.py", argv)
     page = "\n".join([f"# Before and after {args.label}", "", f"Written by `{command}`.",
                       f"Before: {', '.join(f'`{f}`' for f in args.before)}; after: "
                       f"{', '.join(f'`{f}`' for f in args.after)}.", "", *lines])
-    if args.out:
-        atomic_write_text(args.out, page)
-    print(page)
+    publish(page, args.out)
     return 0
 
 

@@ -364,8 +364,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     lines += ["", "## Per reason kind and robot", "",
               ("The kind is the judgement's reason: no face labelled; pads press on it under the footprint's "
                "share; where they do, their faces first land elsewhere (a prouder neighbour, or only the "
-               "fingertips' ends reach it); too low for a pinch; lying flat (too little side above the fingertips); narrowest section "
-               "wider than the stroke allows; no collision-free pose."), "",
+               "fingertips' ends reach it); too low for a pinch; lying flat (too little side above the "
+               "fingertips); narrowest section wider than the stroke allows; no collision-free pose."), "",
               f"| reason | robot | {COUNT_HEADER} |", "|---|---|---|---|---|---|---|---|"]
     infeasible = [r for r in requests if not r.feasible]
     per_kind = counts_by(infeasible, lambda r: (r.kind, r.robot))

@@ -189,16 +189,16 @@ def _on_part(m, d, model: ObjectModel, prompt: str, obj: int, fingers: set[int],
     return GroundTruth.of_object(model, model.prompts).touched_on_part(outcome, model.prompts.index(prompt))
 
 
-def replay_run(run: Path, config: RunConfig, requests: list[tuple[str, str]], limit: int, progress=print
-               ) -> dict[tuple[str, str], list[Replay]]:
+def replay_run(run: Path, config: RunConfig, requests: list[tuple[str, str]], models: dict[str, ObjectModel],
+               limit: int, progress=print) -> dict[tuple[str, str], list[Replay]]:
     """The first `limit` executed trials (by robot, seed and rank) of each (object, part) request of the run in
-    `run` (its recorded `config`), in MuJoCo."""
+    `run` (its recorded `config`), in MuJoCo; `models` holds the requests' objects by id."""
     rows = [r for r in JsonLines(run / "trials.jsonl").read() if r["executed"]]
     results: dict[tuple[str, str], list[Replay]] = {}
     for object_id, prompt in requests:
         chosen = sorted((r for r in rows if (r["object_id"], r["prompt"]) == (object_id, prompt)),
                         key=lambda r: (robot_of(r), seed_of(r), r["rank"]))[:limit]
-        model = load_asset(object_id)
+        model = models[object_id]
         results[(object_id, prompt)] = []
         for robot in dict.fromkeys(map(robot_of, chosen)):
             system = config.at_robot(robot)
@@ -273,18 +273,20 @@ def main(argv: list[str] | None = None) -> int:
         config = load_run(args.run)
         if args.limit < 1:
             raise ValueError(f"--limit must be at least 1, got {args.limit}")
-        known = set(asset_ids())
+        known, models = set(asset_ids()), {}
         for object_id, part in requests:
             if object_id not in known:
                 raise ValueError(f"no twin object {object_id!r} (python -m assets list names them)")
-            parts = load_asset(object_id).prompts
+            models.setdefault(object_id, load_asset(object_id))
+            parts = models[object_id].prompts
             if part not in parts:
                 raise ValueError(f"{object_id} has no part {part!r}; its parts: {', '.join(parts)}")
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     start = time.time()
-    results = replay_run(args.run, config, requests, args.limit, progress=lambda line: print(line, flush=True))
+    results = replay_run(args.run, config, requests, models, args.limit,
+                         progress=lambda line: print(line, flush=True))
     empty = [f"{o}:{p}" for (o, p), replays in results.items() if not replays]
     if empty:
         print(f"error: {args.run / 'trials.jsonl'} has no executed trial of {', '.join(empty)}", file=sys.stderr)

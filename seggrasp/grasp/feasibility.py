@@ -74,10 +74,8 @@ def judge_requests(
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = grasps.subset(np.flatnonzero(parts == j))
-        shares = None
-        if len(on_part):  # per candidate on the part, its pads' smaller share: under the footprint, first landed on
-            shares = np.stack([surface.pad_means(on_part, is_part[:, None].astype(np.float64))[:, :, 0].min(axis=1),
-                               surface.first_touch_shares(on_part, is_part).min(axis=1)])
+        # per candidate on the part, its pads' smaller share: under the footprint, and where they first land
+        shares = np.stack([s.min(axis=1) for s in surface.shares(on_part, is_part)]) if len(on_part) else None
         if shares is not None and shares.min(axis=0).max() >= footprint.min_share:  # a lower-ranked one holds it
             judged[k] = Feasibility(True)
         else:

@@ -117,10 +117,10 @@ class PadSurface:
         or that only the fingertip's rim reaches, takes none of the grip (the face nearest the contact decides where
         the finger touches none of the sample points)."""
         hand, tolerance = self.footprint.gripper, self.footprint.first_touch_tolerance
+        finger_end = max(hand.pad_half_length, hand.tip_beyond_origin)
         # a tip beyond the pad shorter than the first touch's own resolution cannot be told from the pad's end (the
         # Franka Hand's finger is pad to 0.1 mm of its end; the 2F-85's finger reaches 1.25 mm past its pad)
-        pad_end = hand.pad_half_length if hand.tip_beyond_origin - hand.pad_half_length >= tolerance else \
-            max(hand.pad_half_length, hand.tip_beyond_origin)
+        pad_end = hand.pad_half_length if finger_end - hand.pad_half_length >= tolerance else finger_end
         is_part = np.asarray(is_part, dtype=bool)
         shares = is_part[contact_faces(grasps, self.mesh)].astype(np.float64)  # (N, 2)
         openings = hand.pre_grasp_opening(grasps.widths)
@@ -128,16 +128,20 @@ class PadSurface:
             if len(near) == 0:
                 continue
             fingers = pad_touches(pose[None], np.array([opening]), self.points[near], hand.pad_half_width,
-                                  hand.pad_half_length, tolerance, tip=hand.tip_beyond_origin)
+                                  hand.pad_half_length, tolerance, tip=finger_end)
             pressed = is_part[self.point_faces[near]] & (fingers[2][0] <= pad_end)
             for finger, touching in enumerate(fingers[:2]):
                 if touching[0].any():
                     shares[i, finger] = pressed[touching[0]].mean()
         return shares
 
+    def shares(self, grasps: GraspSet, is_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per grasp and pad (N, 2 each) the share of a part (`is_part`, one bool per face) under the footprint
+        (`pad_means`) and in what the pad first lands on (`first_touch_shares`)."""
+        under = self.pad_means(grasps, np.asarray(is_part, dtype=np.float64)[:, None])[:, :, 0]
+        return under, self.first_touch_shares(grasps, is_part)
+
     def part_shares(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
         """(N, 2) per grasp and pad the share of a part (`is_part`, one bool per face) in what the pad presses on:
-        the smaller of its share under the footprint (`pad_means`) and of what it first lands on
-        (`first_touch_shares`)."""
-        footprint = self.pad_means(grasps, np.asarray(is_part, dtype=np.float64)[:, None])[:, :, 0]
-        return np.minimum(footprint, self.first_touch_shares(grasps, is_part))
+        the smaller of the two `shares`."""
+        return np.minimum(*self.shares(grasps, is_part))
