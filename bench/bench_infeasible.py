@@ -66,6 +66,7 @@ REASON_KINDS = (
     ("no face", "no face of the mesh"),
     ("pads' share", "the pads press on it"),
     ("pads land elsewhere", "where the pads' footprint is mostly on it"),
+    ("pads' ends", "mm into the pad from its end"),
     ("too low", "stands at most"),
     ("lies flat", "lies flat"),
     ("too wide", "narrowest section"),

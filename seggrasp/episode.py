@@ -231,16 +231,21 @@ def plan_slots(
     reaches: Callable[[np.ndarray, float], bool] | None = None, footprint: PadFootprint = PadFootprint(),
 ) -> list[Slot]:
     """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
-    probably on the part (`PartPlan.policy`), or the best of `grasps` on the faces the plan selects on, those whose
-    pads press mostly on them first (`footprint`, the cell's hand's); moved into the world. With `reaches` (world pose, width ->
-    whether the cell would execute the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least
-    `MIN_REACH_DEPTH`) come first, in rank order; unreachable ones fill the slots left."""
+    probably on the part (`PartPlan.policy`; those whose pads land only on their ends last), or the best of `grasps`
+    on the faces the plan selects on, those whose pads hold them first (`footprint`, the cell's hand's,
+    `PadSurface.holds`); moved into the world. With `reaches` (world pose, width -> whether the cell would execute
+    the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least `MIN_REACH_DEPTH`) come first,
+    in rank order; unreachable ones fill the slots left."""
     depth = top_k if reaches is None else max(REACH_DEPTH * top_k, MIN_REACH_DEPTH)
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
         if plan.policy is not None:
             chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, depth)
+            if footprint.gripper.pad_end_margin > 0:  # those whose pads land only on their ends go last
+                surface = footprint.on(observation.mesh)
+                chosen_per_prompt = [chosen[np.argsort(~surface.lands_on_pads(grasps.subset(chosen)), kind="stable")]
+                                     for chosen in chosen_per_prompt]
         else:
             chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, depth,
                                                   footprint)

@@ -146,3 +146,33 @@ def test_a_part_only_the_fingertips_ends_land_on_is_infeasible_and_the_reason_sa
                                   "for at most 0 %"), tips.reason
     assert "fingertips' ends" in tips.reason and "they need 50 %" in tips.reason
     assert judged([0, 1]).feasible
+
+
+def test_a_part_the_pads_land_on_only_at_their_ends_is_infeasible_for_the_2f85_and_the_reason_says_how_far_in() -> None:
+    # a block (label 1) 30 mm wide and 10 mm tall under a 20 mm wide one (label 0): pads whose last 1.5 mm reaches
+    # down the block's sides (the 2F-85's fingertip 1.25 mm below) land on it only at their ends; the 2F-85's finger
+    # curves away there, the Franka's does not
+    low = trimesh.creation.box((0.040, 0.030, 0.010))
+    low.apply_translation([0.0, 0.0, 0.005])
+    high = trimesh.creation.box((0.040, 0.020, 0.030))
+    high.apply_translation([0.0, 0.0, 0.025])
+    mesh = trimesh.util.concatenate([low, high])
+    labels = np.r_[np.ones(len(low.faces), dtype=np.int64), np.zeros(len(high.faces), dtype=np.int64)]
+    plane = table_plane_in_object_frame(mesh, np.eye(4))
+
+    def judged(hand: Hand, reaches: list[float]) -> Feasibility:
+        poses = np.repeat(np.eye(4)[None], len(reaches), axis=0)
+        poses[:, :3, :3] = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])  # down, closing along y
+        poses[:, 2, 3] = [0.010 + hand.pad_half_length - r for r in reaches]  # the pads' last r down the sides
+        contacts = np.array([[[0.0, -0.015, 0.010 - r / 2], [0.0, 0.015, 0.010 - r / 2]] for r in reaches])
+        grasps = GraspSet(poses, [0.030] * len(reaches), np.linspace(0.9, 0.5, len(reaches)), contacts)
+        return judge_requests([1], ["top", "block"], hand, AntipodalConfig.for_hand(hand), mesh, labels, grasps,
+                              PadFootprint(gripper=hand), plane)[1]
+
+    ends = judged(ROBOTIQ_2F85, [0.0015])
+    assert not ends.feasible
+    assert ends.reason.startswith("block: where the pads press on it, they first land on it at most "), ends.reason
+    assert ends.reason.endswith("mm into the pad from its end; the robotiq_2f85's pads hold from 2.0 mm"), ends.reason
+    assert float(ends.reason.split("at most ")[1].split(" mm")[0]) <= 1.5
+    assert judged(ROBOTIQ_2F85, [0.0015, 0.005]).feasible  # a lower-ranked candidate whose pads reach 5 mm holds it
+    assert judged(FRANKA_HAND, [0.0015]).feasible

@@ -115,7 +115,7 @@ def test_a_neighbour_a_millimetre_prouder_takes_what_the_pads_first_land_on() ->
     on_bar = labels == 0
     footprint = surface.pad_means(grasps, on_bar.astype(float)[:, None])[:, :, 0]
     assert (footprint[0] > 0.5).all()  # mostly bar under the pads
-    np.testing.assert_allclose(surface.first_touch_shares(grasps, on_bar)[0], 0.0)  # but they land on the collar
+    np.testing.assert_allclose(surface.first_touch(grasps, on_bar)[0][0], 0.0)  # but they land on the collar
     np.testing.assert_allclose(surface.part_shares(grasps, on_bar), [[0.0, 0.0], [1.0, 1.0]])
     # so the grasp in the bar's middle comes first though the sampler scored the other higher
     assert select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())[0].tolist() == [1, 0]
@@ -142,10 +142,30 @@ def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads(two_ti
     surface = PadFootprint().on(mesh)
     footprint = surface.pad_means(grasps, on_low.astype(float)[:, None])[:, :, 0]
     np.testing.assert_allclose(footprint, 1.0)  # the footprint, 3 mm wider than the pads, sees only the block
-    landed = surface.first_touch_shares(grasps, on_low)
+    landed, reach = surface.first_touch(grasps, on_low)
     np.testing.assert_allclose(landed[0], 0.0)
+    np.testing.assert_allclose(reach[0], 0.0)  # nothing the pads' faces land on
     # the pads' faces press on 5 mm of its sides, the fingertips' ends on the 1.25 mm below: about 80 % pressed
     assert (landed[1] > 0.7).all() and (landed[1] < 0.9).all()
+    assert ((reach[1] > 0.0035) & (reach[1] <= 0.005)).all()
+
+
+def test_pads_landing_only_on_their_last_millimetres_hold_for_the_franka_and_not_for_the_2f85(two_tier) -> None:
+    # the pads' last 1 mm or last 5 mm reach down the lower block's sides; the 2F-85's finger curves away past its
+    # pad (`pad_end_margin` 2 mm), the Franka Hand's pad runs to the finger's end (none)
+    mesh, on_low = two_tier
+    for hand, held in ((ROBOTIQ_2F85, [False, True]), (FRANKA_HAND, [True, True])):
+        grasps = _across([0.0, 0.0], z=0.0, width=0.030)
+        grasps.poses[:, 2, 3] = [0.010 + hand.pad_half_length - 0.001, 0.010 + hand.pad_half_length - 0.005]
+        surface = PadFootprint(gripper=hand).on(mesh)
+        reach = surface.first_touch(grasps, on_low)[1]
+        assert (reach[0] < 0.0015).all() and (reach[1] > 0.0035).all(), (hand.name, reach)
+        assert surface.holds(grasps, on_low).tolist() == held, hand.name
+        assert surface.lands_on_pads(grasps).tolist() == held, hand.name
+        # the grasp whose pads hold comes first, though the sampler scored the other higher
+        labels = (~on_low).astype(np.int64)
+        chosen = select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint(gripper=hand))[0].tolist()
+        assert chosen == ([0, 1] if held[0] else [1, 0]), hand.name
 
 
 def test_a_fingertip_shorter_than_the_first_touch_tolerance_is_pad(two_tier) -> None:
@@ -156,7 +176,7 @@ def test_a_fingertip_shorter_than_the_first_touch_tolerance_is_pad(two_tier) -> 
         grasps = _across([0.0], z=0.010 + hand.pad_half_length + 0.00005, width=0.030)
         if hand is ROBOTIQ_2F85:  # its tip reaches 1.25 mm: land 0.65 mm past the pad's end, as far inside the tip
             grasps.poses[:, 2, 3] = 0.010 + hand.pad_half_length + 0.00065
-        shares = PadFootprint(gripper=hand).on(mesh).first_touch_shares(grasps, on_low)
+        shares = PadFootprint(gripper=hand).on(mesh).first_touch(grasps, on_low)[0]
         np.testing.assert_allclose(shares, expected, err_msg=hand.name)
 
 

@@ -2,16 +2,18 @@
 
 A request is feasible when one of the episode's grasp candidates (the sampler's set, which already keeps only
 poses whose width fits the stroke and whose fingers, palm and wrist clear the table and the object) has both
-planned contacts on faces of the part AND pads that each press on the part over at least the footprint's
-`min_share`, both of the surface under them and of what their faces first land on (`PadSurface.part_shares`;
-`seggrasp.grasp.select.select_per_prompt` with a `PadFootprint` ranks such a grasp first). The share
+planned contacts on faces of the part AND pads that hold it (`PadSurface.holds`): each presses on the part over at
+least the footprint's `min_share`, both of the surface under it and of what its face first lands on, and lands
+deeper into the pad than the hand's `pad_end_margin` (`seggrasp.grasp.select.select_per_prompt` with a
+`PadFootprint` ranks such a grasp first). The share
 is measured under the pads themselves: the footprint's `margin` widens them only for ranking (a thin part, an
 eyeglass temple, fills none of the widened pads' share yet lifts by it in the twin). When none
 does, the part's geometry names why, in one sentence with measured numbers, the first that applies of:
 
 1. the part has no face (nothing labelled as it);
 2. candidates touch it, but their pads press on it less than `min_share`, or, where they do, their faces first
-   land elsewhere (a prouder neighbour, or the part meets only the fingertips' ends);
+   land elsewhere (a prouder neighbour, or the part meets only the fingertips' ends), or, where they land on it,
+   only within `Hand.pad_end_margin` of the pads' ends (a 2F-85's finger curves away past its pad);
 3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
    `pinch_min_band`);
 4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
@@ -33,7 +35,7 @@ import numpy as np
 import trimesh
 
 from seggrasp.grasp.antipodal import RAY_EPSILON, AntipodalConfig, opposite_contacts
-from seggrasp.grasp.footprint import PadFootprint
+from seggrasp.grasp.footprint import PadFootprint, PadReading
 from seggrasp.grasp.select import UNASSIGNED, assign_parts, select_per_prompt
 from seggrasp.grasp.types import GraspSet
 from seggrasp.hands import Hand
@@ -69,38 +71,41 @@ def judge_requests(
     judged = {}
     for j, k in enumerate(requests):
         is_part = local == j
-        if len(best[j]) and (surface.part_shares(grasps.subset(best[j]), is_part) >= footprint.min_share).all():
+        if len(best[j]) and surface.holds(grasps.subset(best[j]), is_part).all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = grasps.subset(np.flatnonzero(parts == j))
-        # per candidate on the part, its pads' smaller share: under the footprint, and where they first land
-        shares = np.stack([s.min(axis=1) for s in surface.shares(on_part, is_part)]) if len(on_part) else None
-        if shares is not None and shares.min(axis=0).max() >= footprint.min_share:  # a lower-ranked one holds it
+        reading = surface.read(on_part, is_part) if len(on_part) else None
+        if reading is not None and reading.holds(footprint.min_share, hand.pad_end_margin).any():  # a lower-ranked one
             judged[k] = Feasibility(True)
         else:
-            judged[k] = Feasibility(False, _reason(prompts[k], is_part, shares, hand, config, mesh, footprint,
+            judged[k] = Feasibility(False, _reason(prompts[k], is_part, reading, hand, config, mesh, footprint,
                                                    table_plane))
     return judged
 
 
 def _reason(
-    name: str, faces: np.ndarray, shares: np.ndarray | None, hand: Hand, config: AntipodalConfig,
+    name: str, faces: np.ndarray, reading: PadReading | None, hand: Hand, config: AntipodalConfig,
     mesh: trimesh.Trimesh, footprint: PadFootprint, table_plane: np.ndarray,
 ) -> str:
-    """The sentence for an infeasible part (module docstring); `shares` (2, C): per candidate with both contacts on
-    the part, the smaller share of the part under its two pads' footprint and in what they first land on (None: no
-    such candidate)."""
+    """The sentence for an infeasible part (module docstring); `reading`: what the pads of each candidate with both
+    contacts on the part press on (None: no such candidate)."""
     if not faces.any():
         return f"{name}: no face of the mesh is labelled as it"
-    if shares is not None:
-        under, landed = shares
+    if reading is not None:
+        # per candidate, the worse of its two pads
+        under, landed, reach = (value.min(axis=1) for value in reading)
         need = f"they need {100 * footprint.min_share:.0f} %"
         if under.max() < footprint.min_share:
             return f"{name}: the pads press on it for at most {100 * under.max():.0f} % of their footprint; {need}"
-        return (f"{name}: where the pads' footprint is mostly on it, their faces first land on it for at most "
-                f"{100 * landed[under >= footprint.min_share].max():.0f} % (a prouder neighbour, or only the "
-                f"fingertips' ends, meet it first); {need}")
+        if landed[under >= footprint.min_share].max() < footprint.min_share:
+            return (f"{name}: where the pads' footprint is mostly on it, their faces first land on it for at most "
+                    f"{100 * landed[under >= footprint.min_share].max():.0f} % (a prouder neighbour, or only the "
+                    f"fingertips' ends, meet it first); {need}")
+        pressing = (under >= footprint.min_share) & (landed >= footprint.min_share)
+        return (f"{name}: where the pads press on it, they first land on it at most {1000 * reach[pressing].max():.1f} "
+                f"mm into the pad from its end; the {hand.name}'s pads hold from {1000 * hand.pad_end_margin:.1f} mm")
     vertices = mesh.vertices[np.unique(mesh.faces[faces])]
     height = float((vertices @ table_plane[:3] + table_plane[3]).max())
     pinch = config.pinch_table_clearance + config.pinch_min_band

@@ -7,15 +7,18 @@ by `margin` on every side, because a neighbouring part that stands proud within 
 takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
 just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
 over those points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
-A rigid finger, though, pushes only on what it first lands on: `first_touch_shares` reads the part's share there
+A rigid finger, though, pushes only on what it first lands on: `first_touch` reads the part's share there
 (within `first_touch_tolerance`, the fingertip beyond the pad included but holding nothing), and `part_shares`, the
 smaller of the two, is what selection and the feasibility judgement compare with `min_share` (a kettle's body
-bulges under the lid's rim, and only the fingertips' ends reach it).
+bulges under the lid's rim, and only the fingertips' ends reach it). `first_touch` also reads how far into the pad
+from its fingertip end that touch reaches: a hand's pad holds nothing it lands on only within `Hand.pad_end_margin`
+of that end (`PadReading.holds`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import trimesh
@@ -59,6 +62,21 @@ class PadFootprint:
     def on(self, mesh: trimesh.Trimesh) -> "PadSurface":
         """This footprint on `mesh` (samples its surface once, for any number of grasp queries)."""
         return PadSurface(self, mesh)
+
+
+class PadReading(NamedTuple):
+    """What each pad of N grasps presses on, (N, 2) each, -x pad first: the share of a part under its footprint
+    (`under`) and in what its face first lands on (`landed`), and how far into the pad from its fingertip end that
+    first touch reaches (`reach`, m)."""
+
+    under: np.ndarray
+    landed: np.ndarray
+    reach: np.ndarray
+
+    def holds(self, min_share: float, pad_end_margin: float) -> np.ndarray:
+        """(N,) whether both pads press at least `min_share` on the part, under them and where they land, and land
+        at least `pad_end_margin` into the pad."""
+        return ((np.minimum(self.under, self.landed) >= min_share) & (self.reach >= pad_end_margin)).all(axis=1)
 
 
 class PadSurface:
@@ -110,12 +128,13 @@ class PadSurface:
                     means[i, pad] = face_values[faces].mean(axis=0)
         return means
 
-    def first_touch_shares(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
-        """(N, 2) per grasp and finger the share of a part (`is_part`, one bool per face) in what the rigid finger
-        first lands on as it closes (within `first_touch_tolerance`; the pad and the fingertip beyond it), counting
-        only points the pad's face itself presses: a part that stands back a millimetre from a prouder neighbour,
-        or that only the fingertip's rim reaches, takes none of the grip (the face nearest the contact decides where
-        the finger touches none of the sample points)."""
+    def first_touch(self, grasps: GraspSet, is_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per grasp and finger (N, 2 each), the share of a part (`is_part`, one bool per face) in what the rigid
+        finger first lands on as it closes (within `first_touch_tolerance`; the pad and the fingertip beyond it),
+        counting only points the pad's face itself presses, and how far into the pad from its fingertip end those
+        points reach (m). A part that stands back a millimetre from a prouder neighbour, or that only the fingertip's
+        rim reaches, takes none of the grip. Where the finger touches none of the sample points, the face nearest the
+        contact gives the share and the reach is the pad's length."""
         hand, tolerance = self.footprint.gripper, self.footprint.first_touch_tolerance
         finger_end = max(hand.pad_half_length, hand.tip_beyond_origin)
         # a tip beyond the pad shorter than the first touch's own resolution cannot be told from the pad's end (the
@@ -123,25 +142,39 @@ class PadSurface:
         pad_end = hand.pad_half_length if finger_end - hand.pad_half_length >= tolerance else finger_end
         is_part = np.asarray(is_part, dtype=bool)
         shares = is_part[contact_faces(grasps, self.mesh)].astype(np.float64)  # (N, 2)
+        reach = np.full((len(grasps), 2), 2.0 * hand.pad_half_length)
         openings = hand.pre_grasp_opening(grasps.widths)
         for i, (pose, opening, near) in enumerate(zip(grasps.poses, openings, self._near(grasps, margin=0.0))):
             if len(near) == 0:
                 continue
-            fingers = pad_touches(pose[None], np.array([opening]), self.points[near], hand.pad_half_width,
-                                  hand.pad_half_length, tolerance, tip=finger_end)
-            pressed = is_part[self.point_faces[near]] & (fingers[2][0] <= pad_end)
-            for finger, touching in enumerate(fingers[:2]):
-                if touching[0].any():
-                    shares[i, finger] = pressed[touching[0]].mean()
-        return shares
+            low_pad, high_pad, z = pad_touches(pose[None], np.array([opening]), self.points[near], hand.pad_half_width,
+                                               hand.pad_half_length, tolerance, tip=finger_end)
+            pressed = z[0] <= pad_end
+            for finger, touching in enumerate((low_pad[0], high_pad[0])):
+                if touching.any():
+                    held = touching & pressed
+                    shares[i, finger] = (held & is_part[self.point_faces[near]]).sum() / touching.sum()
+                    reach[i, finger] = pad_end - z[0][held].min() if held.any() else 0.0
+        return shares, reach
 
-    def shares(self, grasps: GraspSet, is_part: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Per grasp and pad (N, 2 each) the share of a part (`is_part`, one bool per face) under the footprint
-        (`pad_means`) and in what the pad first lands on (`first_touch_shares`)."""
+    def read(self, grasps: GraspSet, is_part: np.ndarray) -> PadReading:
+        """What each pad of `grasps` presses on of a part (`is_part`, one bool per face): `PadReading`."""
         under = self.pad_means(grasps, np.asarray(is_part, dtype=np.float64)[:, None])[:, :, 0]
-        return under, self.first_touch_shares(grasps, is_part)
+        return PadReading(under, *self.first_touch(grasps, is_part))
+
+    def holds(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
+        """(N,) whether each grasp's pads hold a part (`is_part`): `PadReading.holds` with the footprint's
+        `min_share` and its hand's `pad_end_margin`."""
+        return self.read(grasps, is_part).holds(self.footprint.min_share, self.footprint.gripper.pad_end_margin)
+
+    def lands_on_pads(self, grasps: GraspSet) -> np.ndarray:
+        """(N,) whether both pads of each grasp first land at least the hand's `pad_end_margin` into the pad, on
+        whatever part."""
+        _, reach = self.first_touch(grasps, np.zeros(len(self.mesh.faces), dtype=bool))
+        return (reach >= self.footprint.gripper.pad_end_margin).all(axis=1)
 
     def part_shares(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
         """(N, 2) per grasp and pad the share of a part (`is_part`, one bool per face) in what the pad presses on:
-        the smaller of the two `shares`."""
-        return np.minimum(*self.shares(grasps, is_part))
+        the smaller of its shares under the footprint and where it first lands (`read`)."""
+        reading = self.read(grasps, is_part)
+        return np.minimum(reading.under, reading.landed)

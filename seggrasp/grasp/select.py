@@ -4,8 +4,8 @@ A grasp's part is the label of the mesh face nearest to its contact points (the 
 and require them to agree: a grasp whose fingers straddle two parts (or touch an unlabelled face) gets -1 and is
 never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
 the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part, under them and where
-they first land (`seggrasp.grasp.footprint`: two contacts on a wine glass's stem say nothing of the bowl under the
-pads' edge), come first; the others fill the top-k only where too few do, so the check never leaves a request
+they first land, and land deeper than the hand's `pad_end_margin` into the pads (`seggrasp.grasp.footprint`: two
+contacts on a wine glass's stem say nothing of the bowl under the pads' edge), come first; the others fill the top-k only where too few do, so the check never leaves a request
 with fewer grasps.
 """
 
@@ -53,8 +53,8 @@ def select_per_prompt(
     footprint: PadFootprint | None = None,
 ) -> list[np.ndarray]:
     """For every prompt k, the indices of the top-k grasps on the faces labelled k (possibly fewer, even none),
-    best first; with a `footprint`, those whose pads each press on at least its `min_share` of faces labelled k
-    first, then the others."""
+    best first; with a `footprint`, those whose pads hold the faces labelled k (`PadSurface.holds`) first, then the
+    others."""
     parts = assign_parts(grasps, mesh, face_labels)
     if footprint is None:
         return [select_on_part(grasps, parts, k, top_k) for k in range(n_prompts)]
@@ -69,7 +69,7 @@ def select_per_prompt(
             if len(pressing) >= top_k:
                 break
             block = ranked[start : start + FOOTPRINT_CHUNK]
-            on_part = (surface.part_shares(grasps.subset(block), is_part) >= footprint.min_share).all(axis=1)
+            on_part = surface.holds(grasps.subset(block), is_part)
             pressing += block[on_part].tolist()
             others += block[~on_part].tolist()
         chosen.append(np.asarray((pressing + others)[:top_k], dtype=np.int64))
