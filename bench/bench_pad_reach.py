@@ -5,8 +5,8 @@
 For every executed oracle trial of an evaluation run (`python -m sim.evaluate --methods oracle ...`) on a request
 judged feasible, the episode is rebuilt as the run built it (`bench.bench_infeasible.episode_of`: the run's scene
 seed, the robot system's hand) and the grasp is moved back into the object frame. `PadSurface.first_touch` reads,
-for each pad, how far into the pad from its fingertip end its first touch reaches; a grasp counts the smaller of its
-two pads. The page bins the trials of each robot system by that reach and gives Suc. per bin and the requests most
+for each pad, how far into the pad from its fingertip end its first touch reaches (0 where only the fingertip beyond
+the pad lands); a grasp counts the smaller of its two pads. The page bins the trials of each robot system by that reach and gives Suc. per bin and the requests most
 frequent in it. It backs each hand's `pad_end_margin` (seggrasp/hands.py): the reach from which a pad holds. A run
 made after that margin took effect executes few grasps below it; measure on a run made before. The page is
 rewritten by the command (atomically), with the command, the date, the commit and the run's folder.
@@ -84,15 +84,16 @@ def table(measured: list[tuple[float, bool, str]]) -> list[str]:
     rows = ["| smaller pad's reach (mm) | trials | Suc. | most frequent (object part outcome: trials) |",
             "|---|---|---|---|"]
     reach_mm = np.array([1000.0 * m[0] for m in measured])
-    for low, high in zip(EDGES_MM[:-1], EDGES_MM[1:]):
-        inside = [m for m, r in zip(measured, reach_mm) if low <= r < high]
+    bins = [("0: only the fingertip beyond the pad lands", reach_mm == 0.0)]
+    bins += [(f"{low:g}-{'' if np.isinf(high) else f'{high:g}'}", (reach_mm > 0.0) & (reach_mm >= low) & (reach_mm < high))
+             for low, high in zip(EDGES_MM[:-1], EDGES_MM[1:])]
+    for label, selected in bins:
+        inside = [m for m, chosen in zip(measured, selected) if chosen]
         if not inside:
             continue
         success = sum(m[1] for m in inside)
         named = ", ".join(f"{what}: {n}" for what, n in Counter(m[2] for m in inside).most_common(NAMED))
-        upper = "" if np.isinf(high) else f"{high:g}"
-        rows.append(f"| {low:g}-{upper} | {len(inside)} | {success}/{len(inside)} = {success / len(inside):.2f} | "
-                    f"{named} |")
+        rows.append(f"| {label} | {len(inside)} | {success}/{len(inside)} = {success / len(inside):.2f} | {named} |")
     return rows
 
 

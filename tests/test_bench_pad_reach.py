@@ -13,12 +13,14 @@ from seggrasp.objects import load_asset
 
 def test_trials_are_binned_by_reach_with_their_success_and_most_frequent_requests() -> None:
     measured = [(0.0005, False, "knife blade slipped")] * 3 + [(0.0005, True, "knife blade lifted"),
-                                                              (0.0025, True, "mug handle lifted"), (0.02, True, "x y lifted")]
+                                                              (0.0025, True, "mug handle lifted"), (0.02, True, "x y lifted"),
+                                                              (0.0, True, "glasses temple lifted")]
     rows = bench_pad_reach.table(measured)
-    assert rows[2] == "| 0-1 | 4 | 1/4 = 0.25 | knife blade slipped: 3, knife blade lifted: 1 |"
-    assert rows[3] == "| 2-3 | 1 | 1/1 = 1.00 | mug handle lifted: 1 |"
-    assert rows[4].startswith("| 8- | 1 | 1/1 = 1.00 |")
-    assert len(rows) == 5  # empty bins are left out
+    assert rows[2] == "| 0: only the fingertip beyond the pad lands | 1 | 1/1 = 1.00 | glasses temple lifted: 1 |"
+    assert rows[3] == "| 0-1 | 4 | 1/4 = 0.25 | knife blade slipped: 3, knife blade lifted: 1 |"
+    assert rows[4] == "| 2-3 | 1 | 1/1 = 1.00 | mug handle lifted: 1 |"
+    assert rows[5].startswith("| 8- | 1 | 1/1 = 1.00 |")
+    assert len(rows) == 6  # empty bins are left out
 
 
 def test_only_executed_oracle_trials_of_feasible_requests_of_the_asked_robots_count(tmp_path: Path) -> None:
