@@ -66,7 +66,7 @@ REASON_KINDS = (
     ("no face", "no face of the mesh"),
     ("pads' share", "the pads press on it"),
     ("pads land elsewhere", "where the pads' footprint is mostly on it"),
-    ("pads' ends", "mm into the pad from its end"),
+    ("pads' ends", "where the pads press on it, they first land on it at most"),
     ("too low", "stands at most"),
     ("lies flat", "lies flat"),
     ("too wide", "narrowest section"),
@@ -365,7 +365,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     lines += ["", "## Per reason kind and robot", "",
               ("The kind is the judgement's reason: no face labelled; pads press on it under the footprint's "
                "share; where they do, their faces first land elsewhere (a prouder neighbour, or only the "
-               "fingertips' ends reach it); too low for a pinch; lying flat (too little side above the "
+               "fingertips' ends reach it); where they land on it, only on their ends (the pads' ends, the hand's "
+               "`pad_end_margin`); too low for a pinch; lying flat (too little side above the "
                "fingertips); narrowest section wider than the stroke allows; no collision-free pose."), "",
               f"| reason | robot | {COUNT_HEADER} |", "|---|---|---|---|---|---|---|---|"]
     infeasible = [r for r in requests if not r.feasible]

@@ -33,6 +33,8 @@ def test_the_reason_kinds_of_sentences() -> None:
     assert bench.reason_kind("blade: lies flat, at most 2.4 mm of it above a pinch's fingertips") == "lies flat"
     assert bench.reason_kind("rim: no collision-free pose of the franka_hand closes on it") == "no pose"
     assert bench.reason_kind("temple: the pads press on it for at most 0 % of their footprint") == "pads' share"
+    assert bench.reason_kind("rim: where the pads press on it, they first land on it at most 1.0 mm into the pad from "
+                             "its end; the robotiq_2f85's pads hold from 2.0 mm") == "pads' ends"
     assert bench.reason_kind("lies flat: something new") == "other"  # the part's name is not the reason
 
 
