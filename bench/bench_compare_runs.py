@@ -22,9 +22,10 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 from bench.bench_lab import command_line, publish  # noqa: E402
 from bench.bench_selection import per_request, read_trials  # noqa: E402
-
 from sim.evaluate.records import robot_of, seed_of  # noqa: E402
 
 COLUMNS = {"Part Sel. (all slots)": 0, "Suc. (all slots)": 1, "top-1 Suc.": 3}
