@@ -15,7 +15,6 @@ rewritten by the command (atomically), with the command, the date, the commit an
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections import Counter, defaultdict
@@ -28,8 +27,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.bench_infeasible import episode_of
 from bench.bench_lab import command_line, commit, publish
+from bench.bench_selection import read_trials
 from seggrasp.grasp.types import GraspSet
 from seggrasp.objects import load_asset
+from sim.evaluate.records import robot_of, seed_of
 
 #: Bin edges (mm) of the smaller pad's reach.
 EDGES_MM = (0.0, 1.0, 1.5, 2.0, 3.0, 5.0, 8.0, np.inf)
@@ -40,16 +41,10 @@ NAMED = 4
 def executed_trials(run: Path, robots: list[str]) -> dict[tuple[str, str], list[dict]]:
     """The run's executed oracle trials of feasible requests, per (robot, object)."""
     trials: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    with open(run / "trials.jsonl") as lines:
-        for number, line in enumerate(lines, 1):
-            try:
-                record = json.loads(line)
-            except json.JSONDecodeError:
-                raise ValueError(f"{run / 'trials.jsonl'}:{number}: not a JSON record") from None
-            robot = record.get("robot", "ur5")
-            if record.get("method") == "oracle" and record.get("executed") and not record.get("infeasible") \
-                    and robot in robots:
-                trials[(robot, record["object_id"])].append(record)
+    for record in read_trials(run):
+        if record.get("method") == "oracle" and record.get("executed") and not record.get("infeasible") \
+                and robot_of(record) in robots:
+            trials[(robot_of(record), record["object_id"])].append(record)
     return trials
 
 
@@ -66,7 +61,7 @@ def measure(robot: str, object_id: str, trials: list[dict]) -> list[tuple[float,
                  gripper=GripperSettings(grip_force=config.hand_grip_force, hand=config.hand)) as cell:
         by_seed: dict[int, list[dict]] = defaultdict(list)
         for trial in trials:
-            by_seed[trial["seed"]].append(trial)
+            by_seed[seed_of(trial)].append(trial)
         for seed, seeded in sorted(by_seed.items()):
             episode = episode_of(cell, object_id, robot, seed, model)
             T_obj_world = np.linalg.inv(episode.observation.T_world_obj)

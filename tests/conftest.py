@@ -39,3 +39,16 @@ def twin_knife():
         return load_asset("knife_chef")
     except (FileNotFoundError, ValueError) as exc:
         pytest.skip(f"twin not available: {exc}")
+
+
+@pytest.fixture(scope="session")
+def two_tier():
+    """A 30 mm wide block 10 mm tall under a 20 mm wide block (trimesh), and which faces are the lower block's."""
+    import numpy as np
+    import trimesh
+
+    low = trimesh.creation.box((0.040, 0.030, 0.010))
+    low.apply_translation([0.0, 0.0, 0.005])
+    high = trimesh.creation.box((0.040, 0.020, 0.030))
+    high.apply_translation([0.0, 0.0, 0.025])
+    return trimesh.util.concatenate([low, high]), np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]

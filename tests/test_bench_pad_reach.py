@@ -28,6 +28,7 @@ def test_only_executed_oracle_trials_of_feasible_requests_of_the_asked_robots_co
     rows = [dict(base, method="oracle", robot="ur5"), dict(base, method="coarse", robot="ur5"),
             dict(base, method="oracle", robot="ur5", executed=False), dict(base, method="oracle", robot="panda"),
             dict(base, method="oracle", robot="ur5", infeasible=True)]
+    rows = [dict(row, rank=rank) for rank, row in enumerate(rows)]  # distinct slots
     (tmp_path / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     trials = bench_pad_reach.executed_trials(tmp_path, ["ur5"])
     assert list(trials) == [("ur5", "mug_classic")] and len(trials[("ur5", "mug_classic")]) == 1
@@ -38,7 +39,7 @@ def test_a_missing_run_or_a_broken_record_is_one_sentence_and_a_non_zero_exit(tm
     assert "trials.jsonl does not exist" in capsys.readouterr().err
     (tmp_path / "trials.jsonl").write_text('{"method": "oracle"}\n{not json\n')
     assert bench_pad_reach.main(["--run", str(tmp_path)]) == 2
-    assert capsys.readouterr().err.strip().endswith("trials.jsonl:2: not a JSON record")
+    assert "trials.jsonl:2: corrupt record" in capsys.readouterr().err  # the runs' own reader names file and line
 
 
 @pytest.mark.slow

@@ -148,16 +148,13 @@ def test_a_part_only_the_fingertips_ends_land_on_is_infeasible_and_the_reason_sa
     assert judged([0, 1]).feasible
 
 
-def test_a_part_the_pads_land_on_only_at_their_ends_is_infeasible_for_the_2f85_and_the_reason_says_how_far_in() -> None:
-    # a block (label 1) 30 mm wide and 10 mm tall under a 20 mm wide one (label 0): pads whose last 1.5 mm reaches
-    # down the block's sides (the 2F-85's fingertip 1.25 mm below) land on it only at their ends; the 2F-85's finger
-    # curves away there, the Franka's does not
-    low = trimesh.creation.box((0.040, 0.030, 0.010))
-    low.apply_translation([0.0, 0.0, 0.005])
-    high = trimesh.creation.box((0.040, 0.020, 0.030))
-    high.apply_translation([0.0, 0.0, 0.025])
-    mesh = trimesh.util.concatenate([low, high])
-    labels = np.r_[np.ones(len(low.faces), dtype=np.int64), np.zeros(len(high.faces), dtype=np.int64)]
+def test_a_part_the_pads_land_on_only_at_their_ends_is_infeasible_for_the_2f85_and_the_reason_says_how_far_in(
+        two_tier) -> None:
+    # the lower block (label 1) 30 mm wide and 10 mm tall under a 20 mm wide one (label 0): pads whose last 1.5 mm
+    # reaches down the block's sides (the 2F-85's fingertip 1.25 mm below) land on it only at their ends; the 2F-85's
+    # finger curves away there, the Franka's does not
+    mesh, on_low = two_tier
+    labels = on_low.astype(np.int64)
     plane = table_plane_in_object_frame(mesh, np.eye(4))
 
     def judged(hand: Hand, reaches: list[float]) -> Feasibility:

@@ -121,16 +121,6 @@ def test_a_neighbour_a_millimetre_prouder_takes_what_the_pads_first_land_on() ->
     assert select_per_prompt(grasps, mesh, labels, 2, footprint=PadFootprint())[0].tolist() == [1, 0]
 
 
-@pytest.fixture(scope="module")
-def two_tier() -> tuple[trimesh.Trimesh, np.ndarray]:
-    """A 30 mm wide block 10 mm tall under a 20 mm wide block: the mesh, and which faces are the lower block's."""
-    low = trimesh.creation.box((0.040, 0.030, 0.010))
-    low.apply_translation([0.0, 0.0, 0.005])
-    high = trimesh.creation.box((0.040, 0.020, 0.030))
-    high.apply_translation([0.0, 0.0, 0.025])
-    return trimesh.util.concatenate([low, high]), np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
-
-
 def test_a_part_only_the_fingertips_ends_reach_is_not_pressed_by_the_pads(two_tier) -> None:
     # the lower block is the part; the 2F-85's fingertips reach 1.25 mm past its pads' ends
     mesh, on_low = two_tier

@@ -77,7 +77,7 @@ def judge_requests(
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = grasps.subset(np.flatnonzero(parts == j))
         reading = surface.read(on_part, is_part) if len(on_part) else None
-        if reading is not None and reading.holds(footprint.min_share, hand.pad_end_margin).any():  # a lower-ranked one
+        if reading is not None and reading.holds(footprint).any():  # a lower-ranked candidate holds it
             judged[k] = Feasibility(True)
         else:
             judged[k] = Feasibility(False, _reason(prompts[k], is_part, reading, hand, config, mesh, footprint,
@@ -99,10 +99,11 @@ def _reason(
         need = f"they need {100 * footprint.min_share:.0f} %"
         if under.max() < footprint.min_share:
             return f"{name}: the pads press on it for at most {100 * under.max():.0f} % of their footprint; {need}"
-        if landed[under >= footprint.min_share].max() < footprint.min_share:
+        best_landed = landed[under >= footprint.min_share].max()
+        if best_landed < footprint.min_share:
             return (f"{name}: where the pads' footprint is mostly on it, their faces first land on it for at most "
-                    f"{100 * landed[under >= footprint.min_share].max():.0f} % (a prouder neighbour, or only the "
-                    f"fingertips' ends, meet it first); {need}")
+                    f"{100 * best_landed:.0f} % (a prouder neighbour, or only the fingertips' ends, meet it first); "
+                    f"{need}")
         pressing = (under >= footprint.min_share) & (landed >= footprint.min_share)
         return (f"{name}: where the pads press on it, they first land on it at most {1000 * reach[pressing].max():.1f} "
                 f"mm into the pad from its end; the {hand.name}'s pads hold from {1000 * hand.pad_end_margin:.1f} mm")

@@ -73,10 +73,11 @@ class PadReading(NamedTuple):
     landed: np.ndarray
     reach: np.ndarray
 
-    def holds(self, min_share: float, pad_end_margin: float) -> np.ndarray:
-        """(N,) whether both pads press at least `min_share` on the part, under them and where they land, and land
-        at least `pad_end_margin` into the pad."""
-        return ((np.minimum(self.under, self.landed) >= min_share) & (self.reach >= pad_end_margin)).all(axis=1)
+    def holds(self, footprint: PadFootprint) -> np.ndarray:
+        """(N,) whether both pads press at least the footprint's `min_share` on the part, under them and where they
+        land, and land at least its hand's `pad_end_margin` into the pad."""
+        return ((np.minimum(self.under, self.landed) >= footprint.min_share)
+                & (self.reach >= footprint.gripper.pad_end_margin)).all(axis=1)
 
 
 class PadSurface:
@@ -163,9 +164,8 @@ class PadSurface:
         return PadReading(under, *self.first_touch(grasps, is_part))
 
     def holds(self, grasps: GraspSet, is_part: np.ndarray) -> np.ndarray:
-        """(N,) whether each grasp's pads hold a part (`is_part`): `PadReading.holds` with the footprint's
-        `min_share` and its hand's `pad_end_margin`."""
-        return self.read(grasps, is_part).holds(self.footprint.min_share, self.footprint.gripper.pad_end_margin)
+        """(N,) whether each grasp's pads hold a part (`is_part`): `PadReading.holds` with this footprint."""
+        return self.read(grasps, is_part).holds(self.footprint)
 
     def lands_on_pads(self, grasps: GraspSet) -> np.ndarray:
         """(N,) whether both pads of each grasp first land at least the hand's `pad_end_margin` into the pad, on

@@ -5,8 +5,8 @@ and require them to agree: a grasp whose fingers straddle two parts (or touch an
 never selected. This is the strict reading of Part Sel., which counts a grasp only if the finger contacts lie on
 the prompted part. With a `PadFootprint`, the grasps whose pads each press mostly on the part, under them and where
 they first land, and land deeper than the hand's `pad_end_margin` into the pads (`seggrasp.grasp.footprint`: two
-contacts on a wine glass's stem say nothing of the bowl under the pads' edge), come first; the others fill the top-k only where too few do, so the check never leaves a request
-with fewer grasps.
+contacts on a wine glass's stem say nothing of the bowl under the pads' edge), come first; the others fill the
+top-k only where too few do, so the check never leaves a request with fewer grasps.
 """
 
 from __future__ import annotations
