@@ -324,6 +324,7 @@ class Episode:
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
+        self._part_grasps: dict[str, GraspSet] = {}  # `part_grasps` per part (digest of its faces)
         self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
         self._others: np.ndarray | None = None  # the other objects' perceived points (world), among others
@@ -414,14 +415,45 @@ class Episode:
     def grasps(self) -> GraspSet:
         """Grasp candidates on the planning mesh, object frame (sampled once)."""
         if self._grasps is None:
-            o = self.observation
-            plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
-            # the context's centre of mass is in the twin's object frame; a perceived mesh lives in the world, so
-            # there the generator estimates it (the antipodal sampler: uniform density, as on the real cell)
-            com, mass = (None, None) if o.perceived else (self.context.center_of_mass, self.context.mass)
-            self._grasps = self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane,
-                                                   center_of_mass=com, mass=mass)
+            self._grasps = self._generate()
         return self._grasps
+
+    def _generate(self, **part) -> GraspSet:
+        """The generator's grasps on the planning mesh with the episode's seed, table and mass (`part`: the
+        sampler's `on_faces`)."""
+        o = self.observation
+        plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
+        # the context's centre of mass is in the twin's object frame; a perceived mesh lives in the world, so there
+        # the generator estimates it (the antipodal sampler: uniform density, as on the real cell)
+        com, mass = (None, None) if o.perceived else (self.context.center_of_mass, self.context.mass)
+        return self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane, center_of_mass=com,
+                                       mass=mass, **part)
+
+    def planning_grasps(self, labels: np.ndarray, prompts: Sequence[int]) -> GraspSet:
+        """The episode's candidates (`grasps`) and, for each prompt in `prompts` whose part (the faces `labels`
+        gives it) fewer than top-k of them hold (`PadSurface.holds`, as `select_per_prompt` ranks them), the
+        candidates `part_grasps` samples on that part; only an `AntipodalSampler` samples on a part."""
+        grasps = self.grasps()
+        if not prompts or not isinstance(self.generator, AntipodalSampler):
+            return grasps
+        mesh, top_k = self.observation.mesh, self.settings.top_k
+        labels = np.asarray(labels)
+        chosen = select_per_prompt(grasps, mesh, labels, len(self.context.prompts), top_k, self.footprint)
+        surface = self.footprint.on(mesh)
+        more = []
+        for k in prompts:
+            is_part = labels == k
+            if is_part.any() and surface.holds(grasps.subset(chosen[k]), is_part).sum() < top_k:
+                more.append(self.part_grasps(is_part))
+        return GraspSet.concatenate([grasps, *more])
+
+    def part_grasps(self, is_part: np.ndarray) -> GraspSet:
+        """Candidates whose first contact is drawn on the faces `is_part` marks (object frame; sampled once per
+        part with the episode's seed)."""
+        key = hashlib.sha1(np.packbits(is_part).tobytes()).hexdigest()
+        if key not in self._part_grasps:
+            self._part_grasps[key] = self._generate(on_faces=is_part)
+        return self._part_grasps[key]
 
     def target_indices(self, targets: Sequence[str] | None) -> list[int]:
         """Prompt indices of `targets` (default: every prompt)."""
@@ -435,7 +467,8 @@ class Episode:
         indices = self.target_indices(targets)
         judged = self.feasibility(plan, indices)
         feasible = [k for k in indices if judged[k].feasible]
-        grasps = GraspSet.empty() if plan.own_grasps is not None else self.grasps()
+        grasps = GraspSet.empty() if plan.own_grasps is not None else \
+            self.planning_grasps(plan.selection_labels, feasible)
         planned = plan_slots(plan, grasps, self.observation, len(self.context.prompts), feasible, self.settings.top_k,
                              self.reaches, self.footprint)
         slots = []

@@ -165,11 +165,14 @@ class AntipodalSampler:
         table_plane: np.ndarray | None = None,
         center_of_mass: np.ndarray | None = None,
         mass: float | None = None,
+        on_faces: np.ndarray | None = None,
     ) -> GraspSet:
         """Antipodal grasps on `mesh` sorted best first; the same seed gives the same grasps.
 
         `center_of_mass` (mesh frame) and `mass` (kg) feed the gravity-torque term; None takes the mesh's
-        uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`."""
+        uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`.
+        `on_faces` (boolean, one per face) draws the first contacts on those faces only (a part with too few
+        grasps gets more of its own) and leaves out the envelope poses, which do not start from a contact."""
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError("AntipodalSampler needs a non-empty trimesh.Trimesh")
         cfg = self.config
@@ -179,7 +182,12 @@ class AntipodalSampler:
         face_normals = normals_sign * np.asarray(mesh.face_normals)
 
         com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
-        pairs = self._friction_cone_pairs(mesh, face_normals, com, rng)
+        if on_faces is not None:
+            on_faces = np.asarray(on_faces, dtype=bool)
+            if on_faces.shape != (len(mesh.faces),) or not on_faces.any():
+                raise ValueError(f"on_faces must mark some of the mesh's {len(mesh.faces)} faces, got shape "
+                                 f"{on_faces.shape} with {int(on_faces.sum())} marked")
+        pairs = self._friction_cone_pairs(mesh, face_normals, com, rng, on_faces)
         if pairs is None:
             LOG.info("antipodal sampler: no contact pair inside the friction cone")
             empty = np.zeros((0, 3))
@@ -198,7 +206,7 @@ class AntipodalSampler:
         pose_antipodality = antipodality[pair_of]
         cloud, cloud_normals = _collision_cloud(mesh, normals_sign, cfg, int(rng.integers(2**31)))
         is_envelope = np.zeros(len(poses), dtype=bool)
-        if plane is not None and cfg.envelope_centres:
+        if plane is not None and cfg.envelope_centres and on_faces is None:
             envelope, envelope_widths = envelope_poses(cloud, plane, self.gripper, cfg)
             poses = np.concatenate([poses, envelope])
             widths = np.r_[widths, envelope_widths]
@@ -256,12 +264,13 @@ class AntipodalSampler:
         return grasps
 
     def _friction_cone_pairs(
-        self, mesh: trimesh.Trimesh, face_normals: np.ndarray, com: np.ndarray, rng: np.random.Generator
+        self, mesh: trimesh.Trimesh, face_normals: np.ndarray, com: np.ndarray, rng: np.random.Generator,
+        on_faces: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Contact pairs (p, q, closing axis, width, antipodality in [0, 1]) that fit the stroke and lie inside both
-        friction cones; None when there is none."""
+        friction cones, the first contacts drawn on `on_faces` (None: anywhere); None when there is none."""
         cfg = self.config
-        points, faces = _surface_samples(mesh, cfg, com, rng)
+        points, faces = _surface_samples(mesh, cfg, com, rng, on_faces)
         p, q, n_p, n_q = opposite_contacts(mesh, points, face_normals[faces], face_normals)
         width = np.linalg.norm(q - p, axis=1)
         ok = (width >= cfg.min_width) & (width <= self.gripper.stroke - cfg.width_margin)
@@ -405,16 +414,20 @@ def _collision_cloud(
 
 
 def _surface_samples(
-    mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator
+    mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator,
+    on_faces: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Area-weighted surface points; `near_com_fraction` of them drawn with the face weights also falling off
-    with the distance from the centre of mass (scale `near_com_scale`), where the grasps that hold lie."""
-    n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples))
-    points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples - n_near, seed=int(rng.integers(2**31)))
+    """Area-weighted surface points (of `on_faces` only, when given); `near_com_fraction` of them drawn with the
+    face weights also falling off with the distance from the centre of mass (scale `near_com_scale`), where the
+    grasps that hold lie (all of them area-weighted when none of those faces lies near it)."""
+    area = mesh.area_faces if on_faces is None else mesh.area_faces * on_faces
+    distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
+    weight = area * np.exp(-((distance / cfg.near_com_scale) ** 2))
+    n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples)) if weight.sum() > 0 else 0
+    points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples - n_near, face_weight=area,
+                                                  seed=int(rng.integers(2**31)))
     if n_near == 0:
         return points, faces
-    distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
-    weight = mesh.area_faces * np.exp(-((distance / cfg.near_com_scale) ** 2))
     near, near_faces = trimesh.sample.sample_surface(mesh, n_near, face_weight=weight, seed=int(rng.integers(2**31)))
     return np.concatenate([points, near]), np.concatenate([faces, near_faces])
 

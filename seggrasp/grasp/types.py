@@ -8,6 +8,7 @@ pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two conta
 from __future__ import annotations
 
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -44,6 +45,14 @@ class GraspSet:
 
     def __len__(self) -> int:
         return int(len(self.poses))
+
+    @classmethod
+    def concatenate(cls, sets: Sequence["GraspSet"]) -> "GraspSet":
+        """The grasps of `sets`, in that order."""
+        if not sets:
+            return cls.empty()
+        return cls(*(np.concatenate([getattr(s, name) for s in sets])
+                     for name in ("poses", "widths", "scores", "contacts")))
 
     def subset(self, index: np.ndarray) -> "GraspSet":
         """The grasps at `index` (integer indices or a boolean mask), in that order."""
