@@ -52,3 +52,17 @@ def two_tier():
     high = trimesh.creation.box((0.040, 0.020, 0.030))
     high.apply_translation([0.0, 0.0, 0.025])
     return trimesh.util.concatenate([low, high]), np.r_[np.ones(len(low.faces), bool), np.zeros(len(high.faces), bool)]
+
+
+@pytest.fixture(scope="session")
+def box_with_knob():
+    """A 60 mm box standing on z = 0 with a 16 mm knob on its top, and its face labels (0 body, 1 knob): the knob
+    is 3 % of the surface."""
+    import numpy as np
+    import trimesh
+
+    body = trimesh.creation.box((0.06, 0.06, 0.10))
+    body.apply_translation([0.0, 0.0, 0.05])
+    knob = trimesh.creation.cylinder(radius=0.008, height=0.02, sections=24)
+    knob.apply_translation([0.0, 0.0, 0.11])
+    return trimesh.util.concatenate([body, knob]), np.r_[np.zeros(len(body.faces), int), np.ones(len(knob.faces), int)]

@@ -8,7 +8,7 @@ import trimesh
 from seggrasp.baselines import shapegrasp_grasps, shapegrasp_labels
 from seggrasp.decompose import Partition
 from seggrasp.fusion import part_mean_scores
-from seggrasp.grasp import GraspSet
+from seggrasp.grasp import AntipodalConfig, AntipodalSampler, GraspSet, select_per_prompt
 from seggrasp.hands import ROBOTIQ_2F85
 from seggrasp.cell import GraspOutcome
 from seggrasp.episode import (Episode, EpisodeContext, EpisodeSettings, Observation, failure_of, plan_slots,
@@ -300,6 +300,41 @@ def test_a_cell_that_checks_only_its_arm_is_reset_once_per_grasp(cylinder, model
     else:  # the first grasp goes in the scene just observed, and the new check needs no scene
         assert cell.resets == 3
 
+
+
+class CountingSampler(AntipodalSampler):
+    """The antipodal sampler, counting its calls per `on_faces` given or not."""
+
+    def __init__(self, config: AntipodalConfig) -> None:
+        super().__init__(config)
+        self.calls = {"everywhere": 0, "on a part": 0}
+
+    def generate(self, *args, on_faces=None, **kwargs) -> GraspSet:
+        self.calls["everywhere" if on_faces is None else "on a part"] += 1
+        return super().generate(*args, on_faces=on_faces, **kwargs)
+
+
+def test_a_part_too_few_candidates_hold_gets_candidates_sampled_on_it(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
+    sampler = CountingSampler(AntipodalConfig(n_surface_samples=300, envelope_centres=0))
+    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    surface = episode.footprint.on(mesh)
+
+    def holding(grasps: GraspSet, k: int) -> int:
+        return int(surface.holds(grasps.subset(select_per_prompt(grasps, mesh, labels, 2, len(grasps))[k]),
+                                 labels == k).sum())
+
+    everywhere = episode.grasps()
+    assert holding(everywhere, 0) >= 10 and holding(everywhere, 1) < 10  # the knob is 3 % of the surface
+    assert len(episode.planning_grasps(labels, [0])) == len(everywhere)  # the body has enough: nothing added
+    assert sampler.calls == {"everywhere": 1, "on a part": 0}
+    topped_up = episode.planning_grasps(labels, [0, 1])
+    assert np.array_equal(topped_up.poses[: len(everywhere)], everywhere.poses)
+    assert holding(topped_up, 1) >= 10 and holding(topped_up, 0) == holding(everywhere, 0)
+    slots = episode.slots(episode.plan("oracle"), ["knob"])
+    assert len(slots) == 10 and all(s.grasp is not None and s.n_candidates == 10 for s in slots)
+    assert sampler.calls == {"everywhere": 1, "on a part": 1}  # the knob's candidates are sampled once
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:

@@ -6,6 +6,7 @@ import trimesh
 
 from seggrasp.grasp import ROBOTIQ_2F85, AntipodalConfig, AntipodalSampler, GraspSet
 from seggrasp.grasp.antipodal import gravity_torque
+from seggrasp.grasp.footprint import contact_faces
 from seggrasp.hands import FRANKA_HAND
 
 MU = 0.5
@@ -237,6 +238,21 @@ def test_footprint_gives_the_width_the_pads_close_on() -> None:
     near_cap = (np.abs(g.poses[:, 2, 3] - 0.06) < 0.01) & (np.abs(g.poses[:, 0, 0]) > 0.95)  # closing along x
     assert near_cap.any()
     assert np.all(g.widths[near_cap] > 0.05)  # the cap, not the 20 mm stem, sets the width
+
+
+def test_grasps_sampled_on_a_part_touch_it_with_both_contacts(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    knob = labels == 1
+    sampler = AntipodalSampler(AntipodalConfig(n_surface_samples=300, envelope_centres=0))
+    everywhere = sampler.generate(mesh, seed=0, table_plane=TABLE)
+    on_knob = sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=knob)
+    touches = lambda g: knob[contact_faces(g, mesh)].all(axis=1)  # noqa: E731
+    assert touches(everywhere).sum() < 10  # the knob is 3 % of the surface
+    assert len(on_knob) >= 100 and touches(on_knob).all()
+    with pytest.raises(ValueError, match="on_faces must mark some of the mesh's"):
+        sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=np.zeros(len(mesh.faces), bool))
+    with pytest.raises(ValueError, match="on_faces must mark some"):
+        sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=knob[:-1])
 
 
 def test_bad_table_plane_and_config_are_rejected() -> None:
