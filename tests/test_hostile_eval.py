@@ -234,6 +234,34 @@ def test_sigterm_stops_a_ray_driver_cleanly(delay, tmp_path) -> None:
     assert not left, f"processes left running: {left}"
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [1, 2])  # in process; a pool of worker processes
+def test_ctrl_c_stops_a_run_in_one_sentence_and_it_resumes(workers, tmp_path) -> None:
+    out = tmp_path / "out"
+    args = [sys.executable, "-m", "sim.evaluate", *SMALL, "--seeds", "0-1", "--workers", str(workers),
+            "--out", str(out)]
+    # a session of its own, so that the SIGINT reaches the whole group as a terminal's Ctrl-C does
+    driver = subprocess.Popen(args, cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    trials = out / "trials.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and driver.poll() is None and not (trials.exists() and trials.stat().st_size):
+        time.sleep(0.05)
+    assert driver.poll() is None, "the run ended before it could be stopped"
+    group = descendants(driver.pid)
+    os.killpg(driver.pid, signal.SIGINT)
+    _, err = driver.communicate(timeout=60)
+    assert driver.returncode == 128 + signal.SIGINT, err
+    assert f"stopped by SIGINT; the records written so far are kept (--resume --out {out}" in _error(err)
+    deadline = time.monotonic() + 30
+    while any(alive(pid) for pid in group) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not [command for pid, command in group.items() if alive(pid)]
+    assert main([*SMALL, "--seeds", "0-1", "--out", str(out), "--resume"]) == 0
+    keys = [trial_key(r) for r in _trials(out)]  # nothing lost, nothing twice
+    assert len(keys) == len(set(keys)) == json.loads((out / "summary.json").read_text())["run"]["expected_trials"]
+
+
 # ------------------------------------------------------------------------- storage: one sentence, nothing lost
 
 

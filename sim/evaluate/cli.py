@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 import time
 from dataclasses import replace
@@ -426,10 +427,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         summary, crashes = run(config, out, workers=args.workers, resume=args.resume, engine=args.engine,
                                address=args.address)
         print((out / "summary.md").read_text())
-    except RunStopped as exc:
-        print(f"error: {exc}; the records written so far are kept (--resume --out {out} continues the run)",
-              file=sys.stderr)
-        return exc.exit_code
+    except (RunStopped, KeyboardInterrupt) as exc:  # a signal from outside; Ctrl-C is SIGINT
+        stopped = exc if isinstance(exc, RunStopped) else RunStopped("stopped by SIGINT", 128 + signal.SIGINT)
+        print(f"error: {stopped}; the records written so far are kept (--resume --out {out_of(args)} continues the "
+              "run)", file=sys.stderr)
+        return stopped.exit_code
     except (ValueError, OSError) as exc:
         print(f"error: {error_message(exc)}", file=sys.stderr)
         return 2

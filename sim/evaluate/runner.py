@@ -382,8 +382,10 @@ def worker_init(uses_torch: bool = False) -> None:
 
 
 def pool_worker_init(uses_torch: bool, driver: int) -> None:
-    """Set up a local pool's worker: it ends with its `driver` process (`die_with_parent`), then `worker_init`."""
+    """Set up a local pool's worker: it ends with its `driver` process (`die_with_parent`) and leaves a Ctrl-C to
+    the driver, which ends the pool (`_run_pool`); then `worker_init`."""
     die_with_parent(driver)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     worker_init(uses_torch)
 
 
