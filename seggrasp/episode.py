@@ -324,7 +324,7 @@ class Episode:
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
-        self._part_grasps: dict[str, GraspSet] = {}  # `part_grasps` per part (digest of its faces)
+        self._part_grasps: dict[bytes, GraspSet] = {}  # `part_grasps` per part (its faces, packed)
         self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
         self._others: np.ndarray | None = None  # the other objects' perceived points (world), among others
@@ -450,7 +450,7 @@ class Episode:
     def part_grasps(self, is_part: np.ndarray) -> GraspSet:
         """Candidates whose first contact is drawn on the faces `is_part` marks (object frame; sampled once per
         part with the episode's seed)."""
-        key = hashlib.sha1(np.packbits(is_part).tobytes()).hexdigest()
+        key = np.packbits(is_part).tobytes()
         if key not in self._part_grasps:
             self._part_grasps[key] = self._generate(on_faces=is_part)
         return self._part_grasps[key]

@@ -7,8 +7,8 @@ pad centres (as sim/gripper.py builds it), i.e. at the midpoint of the two conta
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
 import numpy as np
