@@ -125,9 +125,9 @@ class FloatingGripper:
         """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""
         self._teleport(T_world_base)
 
-    def follow(self, path: list[np.ndarray], speed: float, on_step=None) -> None:
+    def follow(self, path: list[np.ndarray], speed: float, on_step=None, acceleration: float | None = None) -> None:
         """Move the base through waypoints at `speed` (m/s), one slide target per physics step; ends at rest on
-        the last waypoint."""
+        the last waypoint. `acceleration` is not used: the floating gripper moves as VGN's does, at full speed."""
         dt = self.world.physics.time_step
         for T_next in path:
             start = self._commanded[:3, 3]

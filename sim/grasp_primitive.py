@@ -51,13 +51,15 @@ class GraspSettings:
     """The grasp-and-lift primitive's numbers (metres, m/s, seconds). The lift runs at the real cell's tool speed
     (hardware/cell.example.yaml `motion.tool_speed`, 0.10 m/s); at the 0.30 m/s used before, heavy tools held off
     their centre of mass slipped more (oracle Suc. on frying pans, hammers, screwdrivers, spatulas and toothbrushes
-    0.591 at 0.30 m/s, 0.659 at 0.10 m/s)."""
+    0.591 at 0.30 m/s, 0.659 at 0.10 m/s). An arm's approach and lift start and end at rest, ramping at the real
+    cell's tool acceleration (`motion.tool_acceleration`, 0.5 m/s^2) as its linear moves do."""
 
     pregrasp_distance: float = 0.10
     width_margin: float = 0.02
     approach_speed: float = 0.25
     lift_height: float = 0.20
     lift_speed: float = 0.10
+    tool_acceleration: float = 0.5
     hold_time: float = 1.0
     lift_success: float = LIFT_SUCCESS  # the grasped point must rise this much
     max_slip: float = MAX_SLIP  # the grasped point may move this much relative to the gripper from close to hold
@@ -150,7 +152,7 @@ class GraspPrimitive:
         """Approach, close, lift and hold along a checked plan; judge the grasp (class docstring)."""
         s = self.settings
         T_obj_start = self.world.body_pose(self.object_body)
-        self.robot.follow(paths[1], s.approach_speed)
+        self.robot.follow(paths[1], s.approach_speed, acceleration=s.tool_acceleration)
         moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
         self.gripper.close_until_stall()
@@ -172,7 +174,7 @@ class GraspPrimitive:
             moved, turned = _moved(T_tcp_obj0, T_tcp_obj, point)
             drift[0], drift[1] = max(drift[0], moved), max(drift[1], turned)
 
-        self.robot.follow(paths[2], s.lift_speed, on_step=track)
+        self.robot.follow(paths[2], s.lift_speed, on_step=track, acceleration=s.tool_acceleration)
         self._snap("lifted")
         hold_steps = int(round(s.hold_time / self.world.physics.time_step))
         self.robot.hold(hold_steps - 10, on_step=track)

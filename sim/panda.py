@@ -3,8 +3,11 @@
 The description is pybullet_data's `franka_panda/panda.urdf` (Franka Emika's, Apache-2.0), as the twin simulates it
 (`panda_urdf`): absolute mesh paths, the fingers' collision hulls set back by PyBullet's contact margin
 (`sim.world.COLLISION_SKIN`), the fingers' mimic joint removed (`sim.panda_hand` couples them as one motor
-does), each finger carrying the drive's effective mass with a small inertia (the description gives every link
-0.1 kg m^2), the finger joints' effort at the hand's maximum grip force (`seggrasp.hands.FRANKA_HAND`).
+does), each finger carrying the drive's effective mass with a small inertia, the finger joints' effort at the hand's
+maximum grip force (`seggrasp.hands.FRANKA_HAND`), and the arm's and hand's masses, centres of mass and inertias
+those identified on a real Panda (`LINK_INERTIALS`) instead of the description's placeholders (every link 0.1 kg m^2
+about each axis, some 50 times a wrist link's real inertia: with the real joint torques the arm then strayed up to
+30 mm from a straight 10 cm approach and pushed what it came to grasp).
 
 Kinematics: PyBullet's forward kinematics of the description and its damped-least-squares IK, run on a kinematic
 copy of the arm in a physics client of its own (`PandaKinematics`), so that solving never disturbs the simulated
@@ -49,6 +52,27 @@ IK_DAMPING = 0.01
 IK_MAX_STEP = 0.2
 #: The base joint's turns (rad) added to home as further IK seeds.
 IK_SEED_TURNS = (0.8, -0.8)
+#: Mass (kg), centre of mass (m, link frame) and inertia about it (kg m^2: ixx, iyy, izz, ixy, ixz, iyz) of the arm's
+#: links as identified on a real Panda by Gaz et al., "Dynamic Identification of the Franka Emika Panda Robot With
+#: Retrieval of Feasible Parameters Using Penalty-Based Optimization", IEEE RA-L 4(4), 2019 (its link frames are the
+#: description's), and of the hand as Franka's description gives it (0.73 kg, the datasheet's).
+LINK_INERTIALS = {
+    "panda_link1": (4.970684, (0.003875, 0.002081, -0.04762),
+                    (0.70337, 0.70661, 0.009117, -0.000139, 0.006772, 0.019169)),
+    "panda_link2": (0.646926, (-0.003141, -0.02872, 0.003495),
+                    (0.007962, 0.02811, 0.025995, -0.003925, 0.010254, 0.000704)),
+    "panda_link3": (3.228604, (0.027518, 0.039252, -0.066502),
+                    (0.037242, 0.036155, 0.01083, -0.004761, -0.011396, -0.012805)),
+    "panda_link4": (3.587895, (-0.05317, 0.104419, 0.027454),
+                    (0.025853, 0.019552, 0.028323, 0.007796, -0.001332, 0.008641)),
+    "panda_link5": (1.225946, (-0.011953, 0.041065, -0.038437),
+                    (0.035549, 0.029474, 0.008627, -0.002117, -0.004037, 0.000229)),
+    "panda_link6": (1.666555, (0.060149, -0.014117, -0.010517),
+                    (0.001964, 0.004354, 0.005433, 0.000109, -0.001158, 0.000341)),
+    "panda_link7": (0.735522, (0.010517, -0.004252, 0.061597),
+                    (0.012516, 0.010027, 0.004815, -0.000428, -0.001196, -0.000741)),
+    HAND_LINK: (0.73, (-0.01, 0.0, 0.03), (0.001, 0.0025, 0.0017, 0.0, 0.0, 0.0)),
+}
 
 
 def _mesh_path(filename: str) -> str:
@@ -75,6 +99,9 @@ def panda_urdf() -> Path:
     for mesh in robot.iter("mesh"):
         mesh.set("filename", _mesh_path(mesh.get("filename")))
     for link in robot.iter("link"):
+        if link.get("name") in LINK_INERTIALS:
+            link.remove(link.find("inertial"))
+            link.append(_inertial(*LINK_INERTIALS[link.get("name")]))
         if link.get("name") in FINGER_LINKS:
             link.remove(link.find("inertial"))
             link.append(inertial_element(CARRIAGE_MASS, 1e-4))
@@ -96,6 +123,16 @@ def panda_urdf() -> Path:
                 joint.remove(mimic)
             joint.find("limit").set("effort", f"{FRANKA_HAND.grip_force_range[1]:g}")
     return write_urdf(robot, "panda_franka_hand.urdf")
+
+
+def _inertial(mass: float, com: tuple[float, float, float], inertia: tuple[float, ...]) -> ET.Element:
+    """An <inertial> element: `mass` at `com` (link frame) with the inertia (ixx, iyy, izz, ixy, ixz, iyz) about it."""
+    inertial = ET.Element("inertial")
+    ET.SubElement(inertial, "origin", xyz=" ".join(f"{v:g}" for v in com), rpy="0 0 0")
+    ET.SubElement(inertial, "mass", value=f"{mass:g}")
+    ET.SubElement(inertial, "inertia", **{name: f"{v:g}" for name, v in
+                                          zip(("ixx", "iyy", "izz", "ixy", "ixz", "iyz"), inertia)})
+    return inertial
 
 
 class PandaKinematics:

@@ -49,6 +49,10 @@ JOINT_WEIGHTS = np.array([2.0, 2.0, 1.5, 1.0, 1.0, 0.5])
 IK_ANGLE_TOLERANCE = np.deg2rad(3.0)
 #: The largest joint step allowed between neighbouring straight-line waypoints (rad).
 MAX_JOINT_JUMP = 0.25
+#: A joint move has ended when every joint is this close to its target (rad) and slower than this (rad/s) ...
+SETTLED_RAD = 1e-3
+#: ... or after this long (s).
+SETTLE_TIME = 1.0
 
 
 @dataclass(frozen=True)
@@ -139,10 +143,15 @@ class SerialArm:
             positionGains=[0.3] * len(self.arm_joints), velocityGains=[1.0] * len(self.arm_joints),
         )
 
-    def follow(self, path: list[np.ndarray], speed: float, on_step=None) -> None:
+    def follow(self, path: list[np.ndarray], speed: float, on_step=None, acceleration: float | None = None) -> None:
         """Track joint waypoints `PATH_RESOLUTION` m apart at Cartesian `speed` (m/s), slowed where a joint would
-        exceed the joint speed limit; joint targets are interpolated every physics step."""
+        exceed the joint speed limit; joint targets are interpolated every physics step. With `acceleration`
+        (m/s^2) the move starts and ends at rest, its speed ramping up and down at that rate, as a real arm's
+        linear move does; without, it starts at full speed."""
         dt = self.world.physics.time_step
+        if acceleration is not None:
+            self._track_ramped(path, speed, acceleration, on_step)
+            return
 
         def steps_for(dq: np.ndarray) -> int:
             duration = max(PATH_RESOLUTION / speed, np.abs(dq).max() / self.settings.max_joint_speed)
@@ -150,14 +159,49 @@ class SerialArm:
 
         self._track(path, steps_for, on_step)
 
+    def _track_ramped(self, path: list[np.ndarray], speed: float, acceleration: float, on_step=None) -> None:
+        """`follow` with a trapezoidal speed profile along the path (each segment `PATH_RESOLUTION` long, its
+        speed capped where a joint would exceed the joint speed limit)."""
+        if acceleration <= 0 or speed <= 0:
+            raise ValueError(f"speed and acceleration must be positive, got {speed} m/s and {acceleration} m/s^2")
+        dt = self.world.physics.time_step
+        waypoints = np.array([self.q_commanded, *path])
+        steps = np.diff(waypoints, axis=0)
+        joint_step = np.maximum(np.abs(steps).max(axis=1), 1e-12)
+        capped = np.minimum(speed, self.settings.max_joint_speed * PATH_RESOLUTION / joint_step)
+        length = len(steps) * PATH_RESOLUTION
+        s = v = 0.0
+        while length - s > 1e-9:
+            segment = min(int(s / PATH_RESOLUTION), len(steps) - 1)
+            v = min(capped[segment], v + acceleration * dt, float(np.sqrt(2.0 * acceleration * (length - s))))
+            s = min(s + v * dt, length)
+            segment = min(int(s / PATH_RESOLUTION), len(steps) - 1)
+            fraction = s / PATH_RESOLUTION - segment
+            self._command(waypoints[segment] + steps[segment] * fraction, steps[segment] / PATH_RESOLUTION * v)
+            if on_step is not None:
+                on_step()
+            self.world.step()
+        self._command(waypoints[-1], np.zeros(len(self.arm_joints)))
+
     def move_free(self, path: list[np.ndarray], on_step=None) -> None:
-        """Follow a free-space joint path at the joint speed limit (simulated)."""
+        """Follow a free-space joint path at the joint speed limit (simulated), then hold the arm until it is at
+        rest on the path's end (its joints within `SETTLED_RAD` of it and slower than `SETTLED_RAD` per second; at
+        most `SETTLE_TIME`), as a real arm's joint move ends before the next move starts: braking from full speed
+        in one step leaves an arm swinging, and a Panda still swinging strayed 20-30 mm off its straight approach."""
         dt = self.world.physics.time_step
 
         def steps_for(dq: np.ndarray) -> int:
             return max(1, int(np.ceil(np.abs(dq).max() / self.settings.max_joint_speed / dt)))
 
         self._track(path, steps_for, on_step)
+        for _ in range(int(round(SETTLE_TIME / dt))):
+            states = self.world.client.getJointStates(self.body, self.arm_joints)
+            if (max(abs(state[0] - q) for state, q in zip(states, self.q_commanded)) < SETTLED_RAD
+                    and max(abs(state[1]) for state in states) < SETTLED_RAD):
+                break
+            if on_step is not None:
+                on_step()
+            self.world.step()
 
     def _track(self, path: list[np.ndarray], steps_for, on_step=None) -> None:
         """Interpolate joint targets every physics step towards each waypoint, in `steps_for(q_next - q)` steps;

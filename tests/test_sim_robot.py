@@ -96,3 +96,29 @@ def test_a_straight_move_ends_at_rest_on_its_target(arm):
     arm.world.step(120)  # as long as closing the gripper takes
     position_error, _ = pose_error(arm.world.link_pose(arm.body, arm.gripper_base_link), T_target)
     assert position_error < 0.001
+
+
+def test_a_straight_move_with_an_acceleration_starts_and_ends_at_rest(arm):
+    """The approach and lift ramp at the cell's tool acceleration, as a real linear move does: from rest, the
+    gripper covers about a t^2 / 2 at first (at full speed from the first step, 25 mm in 0.1 s), and a move too
+    short to reach its speed takes 2 sqrt(length / a)."""
+    arm.reset_home(MAX_WIDTH)
+    T_pre = arm.fk(HOME_Q)
+    T_pre[:3, 3] = [0.5, 0.0, 0.25]
+    T_pre[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    T_target = T_pre.copy()
+    T_target[2, 3] -= 0.10
+    candidates, reason = arm.plan([T_pre, T_target])
+    assert candidates, reason
+    paths = candidates[0]
+    arm.place(paths[0][0])
+    dt, acceleration = arm.world.physics.time_step, 0.5
+    heights = []
+    arm.follow(paths[1], 0.25, on_step=lambda: heights.append(arm.world.link_pose(arm.body, arm.gripper_base_link)[2, 3]),
+               acceleration=acceleration)
+    start = heights[0]
+    after = start - heights[int(round(0.1 / dt))]  # the base comes down
+    assert 0.5 * acceleration * 0.1**2 * 0.5 < after < 0.5 * acceleration * 0.1**2 * 2.0
+    assert len(heights) * dt == pytest.approx(2.0 * np.sqrt(0.10 / acceleration), rel=0.05)
+    arm.world.step(120)
+    assert pose_error(arm.world.link_pose(arm.body, arm.gripper_base_link), T_target)[0] < 0.001
