@@ -125,7 +125,7 @@ class FloatingGripper:
         """Put the gripper base at a pose instantly (kinematic; used for checks and free-space moves)."""
         self._teleport(T_world_base)
 
-    def follow(self, path: list[np.ndarray], speed: float, on_step=None, acceleration: float | None = None) -> None:
+    def follow(self, path: list[np.ndarray], speed: float, acceleration: float, on_step=None) -> None:
         """Move the base through waypoints at `speed` (m/s), one slide target per physics step; ends at rest on
         the last waypoint. `acceleration` is not used: the floating gripper moves as VGN's does, at full speed."""
         dt = self.world.physics.time_step

@@ -152,7 +152,7 @@ class GraspPrimitive:
         """Approach, close, lift and hold along a checked plan; judge the grasp (class docstring)."""
         s = self.settings
         T_obj_start = self.world.body_pose(self.object_body)
-        self.robot.follow(paths[1], s.approach_speed, acceleration=s.tool_acceleration)
+        self.robot.follow(paths[1], s.approach_speed, s.tool_acceleration)
         moved, turned = _moved(T_obj_start, self.world.body_pose(self.object_body))
         pushed = moved > s.max_slip or turned > np.deg2rad(s.max_rotation_deg)
         self.gripper.close_until_stall()
@@ -174,7 +174,7 @@ class GraspPrimitive:
             moved, turned = _moved(T_tcp_obj0, T_tcp_obj, point)
             drift[0], drift[1] = max(drift[0], moved), max(drift[1], turned)
 
-        self.robot.follow(paths[2], s.lift_speed, on_step=track, acceleration=s.tool_acceleration)
+        self.robot.follow(paths[2], s.lift_speed, s.tool_acceleration, on_step=track)
         self._snap("lifted")
         hold_steps = int(round(s.hold_time / self.world.physics.time_step))
         self.robot.hold(hold_steps - 10, on_step=track)

@@ -143,25 +143,11 @@ class SerialArm:
             positionGains=[0.3] * len(self.arm_joints), velocityGains=[1.0] * len(self.arm_joints),
         )
 
-    def follow(self, path: list[np.ndarray], speed: float, on_step=None, acceleration: float | None = None) -> None:
-        """Track joint waypoints `PATH_RESOLUTION` m apart at Cartesian `speed` (m/s), slowed where a joint would
-        exceed the joint speed limit; joint targets are interpolated every physics step. With `acceleration`
-        (m/s^2) the move starts and ends at rest, its speed ramping up and down at that rate, as a real arm's
-        linear move does; without, it starts at full speed."""
-        dt = self.world.physics.time_step
-        if acceleration is not None:
-            self._track_ramped(path, speed, acceleration, on_step)
-            return
-
-        def steps_for(dq: np.ndarray) -> int:
-            duration = max(PATH_RESOLUTION / speed, np.abs(dq).max() / self.settings.max_joint_speed)
-            return max(1, int(round(duration / dt)))
-
-        self._track(path, steps_for, on_step)
-
-    def _track_ramped(self, path: list[np.ndarray], speed: float, acceleration: float, on_step=None) -> None:
-        """`follow` with a trapezoidal speed profile along the path (each segment `PATH_RESOLUTION` long, its
-        speed capped where a joint would exceed the joint speed limit)."""
+    def follow(self, path: list[np.ndarray], speed: float, acceleration: float, on_step=None) -> None:
+        """Track joint waypoints `PATH_RESOLUTION` m apart at Cartesian `speed` (m/s), starting and ending at rest
+        with the speed ramping up and down at `acceleration` (m/s^2), as a real arm's linear move does (a
+        trapezoidal profile along the path), slowed where a joint would exceed the joint speed limit; joint targets
+        are interpolated every physics step."""
         if acceleration <= 0 or speed <= 0:
             raise ValueError(f"speed and acceleration must be positive, got {speed} m/s and {acceleration} m/s^2")
         dt = self.world.physics.time_step

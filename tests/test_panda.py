@@ -198,5 +198,5 @@ def test_the_panda_ends_a_joint_move_at_rest_and_approaches_along_the_straight_l
             moved = cell.world.link_pose(arm.body, arm.gripper_base_link)[:3, 3] - start
             off_line.append(float(np.linalg.norm(moved - (moved @ line) * line)))
 
-        arm.follow(candidates[0][1], 0.25, on_step=track, acceleration=0.5)
+        arm.follow(candidates[0][1], 0.25, 0.5, on_step=track)
         assert max(off_line) < 0.002

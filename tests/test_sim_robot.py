@@ -92,7 +92,7 @@ def test_a_straight_move_ends_at_rest_on_its_target(arm):
     assert candidates, reason
     paths = candidates[0]
     arm.place(paths[0][0])
-    arm.follow(paths[1], 0.25)  # the cell's approach speed
+    arm.follow(paths[1], 0.25, 0.5)  # the cell's approach speed and tool acceleration
     arm.world.step(120)  # as long as closing the gripper takes
     position_error, _ = pose_error(arm.world.link_pose(arm.body, arm.gripper_base_link), T_target)
     assert position_error < 0.001
@@ -114,8 +114,8 @@ def test_a_straight_move_with_an_acceleration_starts_and_ends_at_rest(arm):
     arm.place(paths[0][0])
     dt, acceleration = arm.world.physics.time_step, 0.5
     heights = []
-    arm.follow(paths[1], 0.25, on_step=lambda: heights.append(arm.world.link_pose(arm.body, arm.gripper_base_link)[2, 3]),
-               acceleration=acceleration)
+    arm.follow(paths[1], 0.25, acceleration,
+               on_step=lambda: heights.append(arm.world.link_pose(arm.body, arm.gripper_base_link)[2, 3]))
     start = heights[0]
     after = start - heights[int(round(0.1 / dt))]  # the base comes down
     assert 0.5 * acceleration * 0.1**2 * 0.5 < after < 0.5 * acceleration * 0.1**2 * 2.0
