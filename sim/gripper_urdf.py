@@ -95,12 +95,16 @@ def finger_arc(robot: ET.Element, side: tuple[str, ...], angles: np.ndarray) -> 
     return T_body_finger0, displacement
 
 
-def inertial_element(mass: float, inertia: float = 1e-6) -> ET.Element:
-    """An <inertial> element: `mass` (kg) at the link frame with a diagonal `inertia` (kg m^2)."""
+def inertial_element(mass: float, inertia: float | tuple[float, ...] = 1e-6,
+                     com: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> ET.Element:
+    """An <inertial> element: `mass` (kg) at `com` (m, link frame) with `inertia` (kg m^2) about it, one number for
+    a diagonal one or (ixx, iyy, izz, ixy, ixz, iyz)."""
+    ixx, iyy, izz, ixy, ixz, iyz = (inertia, inertia, inertia, 0.0, 0.0, 0.0) if np.isscalar(inertia) else inertia
     inertial = ET.Element("inertial")
-    ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
+    ET.SubElement(inertial, "origin", xyz=" ".join(f"{v:g}" for v in com), rpy="0 0 0")
     ET.SubElement(inertial, "mass", value=f"{mass:g}")
-    ET.SubElement(inertial, "inertia", ixx=f"{inertia:g}", ixy="0", ixz="0", iyy=f"{inertia:g}", iyz="0", izz=f"{inertia:g}")
+    ET.SubElement(inertial, "inertia", ixx=f"{ixx:g}", ixy=f"{ixy:g}", ixz=f"{ixz:g}", iyy=f"{iyy:g}", iyz=f"{iyz:g}",
+                  izz=f"{izz:g}")
     return inertial
 
 

@@ -100,8 +100,9 @@ def panda_urdf() -> Path:
         mesh.set("filename", _mesh_path(mesh.get("filename")))
     for link in robot.iter("link"):
         if link.get("name") in LINK_INERTIALS:
+            mass, com, inertia = LINK_INERTIALS[link.get("name")]
             link.remove(link.find("inertial"))
-            link.append(_inertial(*LINK_INERTIALS[link.get("name")]))
+            link.append(inertial_element(mass, inertia, com))
         if link.get("name") in FINGER_LINKS:
             link.remove(link.find("inertial"))
             link.append(inertial_element(CARRIAGE_MASS, 1e-4))
@@ -123,16 +124,6 @@ def panda_urdf() -> Path:
                 joint.remove(mimic)
             joint.find("limit").set("effort", f"{FRANKA_HAND.grip_force_range[1]:g}")
     return write_urdf(robot, "panda_franka_hand.urdf")
-
-
-def _inertial(mass: float, com: tuple[float, float, float], inertia: tuple[float, ...]) -> ET.Element:
-    """An <inertial> element: `mass` at `com` (link frame) with the inertia (ixx, iyy, izz, ixy, ixz, iyz) about it."""
-    inertial = ET.Element("inertial")
-    ET.SubElement(inertial, "origin", xyz=" ".join(f"{v:g}" for v in com), rpy="0 0 0")
-    ET.SubElement(inertial, "mass", value=f"{mass:g}")
-    ET.SubElement(inertial, "inertia", **{name: f"{v:g}" for name, v in
-                                          zip(("ixx", "iyy", "izz", "ixy", "ixz", "iyz"), inertia)})
-    return inertial
 
 
 class PandaKinematics:
