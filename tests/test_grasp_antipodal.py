@@ -5,7 +5,7 @@ import pytest
 import trimesh
 
 from seggrasp.grasp import ROBOTIQ_2F85, AntipodalConfig, AntipodalSampler, GraspSet
-from seggrasp.grasp.antipodal import gravity_torque
+from seggrasp.grasp.antipodal import gravity_torque, part_draw_weights
 from seggrasp.grasp.footprint import contact_faces
 from seggrasp.hands import FRANKA_HAND
 
@@ -240,7 +240,7 @@ def test_footprint_gives_the_width_the_pads_close_on() -> None:
     assert np.all(g.widths[near_cap] > 0.05)  # the cap, not the 20 mm stem, sets the width
 
 
-def test_grasps_sampled_on_a_part_touch_it_with_both_contacts(box_with_knob) -> None:
+def test_sampling_on_a_part_finds_the_grasps_the_whole_mesh_barely_has(box_with_knob) -> None:
     mesh, labels = box_with_knob
     knob = labels == 1
     sampler = AntipodalSampler(AntipodalConfig(n_surface_samples=300, envelope_centres=0))
@@ -248,11 +248,24 @@ def test_grasps_sampled_on_a_part_touch_it_with_both_contacts(box_with_knob) -> 
     on_knob = sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=knob)
     touches = lambda g: knob[contact_faces(g, mesh)].all(axis=1)  # noqa: E731
     assert touches(everywhere).sum() < 10  # the knob is 3 % of the surface
-    assert len(on_knob) >= 100 and touches(on_knob).all()
+    # first contacts drawn on the knob and, for at most half of them, on the box within a pad's length of it
+    assert touches(on_knob).sum() >= 100
     with pytest.raises(ValueError, match="on_faces must mark some of the mesh's"):
         sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=np.zeros(len(mesh.faces), bool))
     with pytest.raises(ValueError, match="on_faces must mark some"):
         sampler.generate(mesh, seed=0, table_plane=TABLE, on_faces=knob[:-1])
+
+
+def test_a_part_s_draw_takes_in_its_neighbours_within_reach_at_most_as_much_as_the_part(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    knob = labels == 1
+    # the box's nearest vertices, its top corners, lie 34 mm from the knob's rim
+    assert np.array_equal(part_draw_weights(mesh, knob, 0.02), knob.astype(float))
+    weights = part_draw_weights(mesh, knob, 0.04)
+    ring = (weights > 0) & ~knob
+    below = mesh.triangles_center[:, 2] < 1e-6  # the box's bottom: no vertex within reach
+    assert np.all(weights[knob] == 1.0) and np.array_equal(ring, ~knob & ~below)
+    assert (mesh.area_faces * weights)[ring].sum() == pytest.approx(mesh.area_faces[knob].sum())
 
 
 def test_bad_table_plane_and_config_are_rejected() -> None:

@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 from seggrasp.grasp.clearance import COLLISION_CHUNK, collision_free
 from seggrasp.grasp.pads import box_corners, pad_bands, pressed_centres, sweep
@@ -171,8 +172,10 @@ class AntipodalSampler:
 
         `center_of_mass` (mesh frame) and `mass` (kg) feed the gravity-torque term; None takes the mesh's
         uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`.
-        `on_faces` (boolean, one per face) draws the first contacts on those faces only (a part with too few
-        grasps gets more of its own) and leaves out the envelope poses, which do not start from a contact."""
+        `on_faces` (boolean, one per face) draws the first contacts on those faces and on the faces within a pad's
+        length of them only, at least half on the faces themselves (a part with too few grasps gets more of its
+        own: a level pose from a pair on the neighbouring stem slides its pads down onto a wine glass's foot), and
+        leaves out the envelope poses, which do not start from a contact."""
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError("AntipodalSampler needs a non-empty trimesh.Trimesh")
         cfg = self.config
@@ -181,13 +184,14 @@ class AntipodalSampler:
         normals_sign = -1.0 if (mesh.is_watertight and mesh.volume < 0) else 1.0
         face_normals = normals_sign * np.asarray(mesh.face_normals)
 
-        com = _center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
+        com = mesh_center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
         if on_faces is not None:
             on_faces = np.asarray(on_faces, dtype=bool)
             if on_faces.shape != (len(mesh.faces),) or not on_faces.any():
                 raise ValueError(f"on_faces must mark some of the mesh's {len(mesh.faces)} faces, got shape "
                                  f"{on_faces.shape} with {int(on_faces.sum())} marked")
-        pairs = self._friction_cone_pairs(mesh, face_normals, com, rng, on_faces)
+        draw = None if on_faces is None else part_draw_weights(mesh, on_faces, 2.0 * cfg.pad_half_length)
+        pairs = self._friction_cone_pairs(mesh, face_normals, com, rng, draw)
         if pairs is None:
             LOG.info("antipodal sampler: no contact pair inside the friction cone")
             empty = np.zeros((0, 3))
@@ -265,12 +269,13 @@ class AntipodalSampler:
 
     def _friction_cone_pairs(
         self, mesh: trimesh.Trimesh, face_normals: np.ndarray, com: np.ndarray, rng: np.random.Generator,
-        on_faces: np.ndarray | None,
+        draw: np.ndarray | None,
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """Contact pairs (p, q, closing axis, width, antipodality in [0, 1]) that fit the stroke and lie inside both
-        friction cones, the first contacts drawn on `on_faces` (None: anywhere); None when there is none."""
+        friction cones, the first contacts drawn with the per-face weights `draw` times area (None: anywhere);
+        None when there is none."""
         cfg = self.config
-        points, faces = _surface_samples(mesh, cfg, com, rng, on_faces)
+        points, faces = _surface_samples(mesh, cfg, com, rng, draw)
         p, q, n_p, n_q = opposite_contacts(mesh, points, face_normals[faces], face_normals)
         width = np.linalg.norm(q - p, axis=1)
         ok = (width >= cfg.min_width) & (width <= self.gripper.stroke - cfg.width_margin)
@@ -415,12 +420,12 @@ def _collision_cloud(
 
 def _surface_samples(
     mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator,
-    on_faces: np.ndarray | None = None,
+    draw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Area-weighted surface points (of `on_faces` only, when given); `near_com_fraction` of them drawn with the
-    face weights also falling off with the distance from the centre of mass (scale `near_com_scale`), where the
-    grasps that hold lie (all of them area-weighted when none of those faces lies near it)."""
-    area = mesh.area_faces if on_faces is None else mesh.area_faces * on_faces
+    """Area-weighted surface points (each face's area times its `draw` weight, when given); `near_com_fraction` of
+    them drawn with the face weights also falling off with the distance from the centre of mass (scale
+    `near_com_scale`), where the grasps that hold lie (all of them area-weighted when no drawn face lies near it)."""
+    area = mesh.area_faces if draw is None else mesh.area_faces * draw
     distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
     weight = area * np.exp(-((distance / cfg.near_com_scale) ** 2))
     n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples)) if weight.sum() > 0 else 0
@@ -439,7 +444,21 @@ def gravity_torque(poses: np.ndarray, com: np.ndarray, up: np.ndarray, mass: flo
     return np.abs(np.einsum("ij,ij->i", np.cross(lever, -9.81 * mass * up[None]), poses[:, :3, 0]))
 
 
-def _center_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:
+def part_draw_weights(mesh: trimesh.Trimesh, faces: np.ndarray, distance: float) -> np.ndarray:
+    """Per face, the weight a part's first contacts are drawn with (times area): 1 on the faces `faces` (boolean
+    mask), and on the ring of other faces with a vertex within `distance` (m) of theirs as much as keeps the ring's
+    share of the draw at most the part's (a small knob on a wide lid is not drowned by the lid), else 0."""
+    marked = np.unique(mesh.faces[faces])
+    near = cKDTree(mesh.vertices[marked]).query(mesh.vertices, distance_upper_bound=distance)[0] <= distance
+    ring = near[mesh.faces].any(axis=1) & ~faces
+    ring_area = float(mesh.area_faces[ring].sum())
+    weights = faces.astype(np.float64)
+    if ring_area > 0:
+        weights[ring] = min(1.0, float(mesh.area_faces[faces].sum()) / ring_area)
+    return weights
+
+
+def mesh_center_of_mass(mesh: trimesh.Trimesh) -> np.ndarray:
     """Uniform-density centre of mass for a closed mesh; area-weighted surface centroid otherwise."""
     if mesh.is_watertight and abs(mesh.volume) > 1e-12:
         return np.asarray(mesh.center_mass, dtype=np.float64)
