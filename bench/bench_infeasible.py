@@ -64,6 +64,7 @@ CLEARANCES = ("cell", "sampler")
 #: The reason kinds, by how `seggrasp.grasp.feasibility` words each sentence after "<part>: ".
 REASON_KINDS = (
     ("no face", "no face of the mesh"),
+    ("weight turns it", "wherever the pads hold it"),
     ("pads' share", "the pads press on it"),
     ("pads land elsewhere", "where the pads' footprint is mostly on it"),
     ("pads' ends", "where the pads press on it, they first land on it at most"),
@@ -363,7 +364,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
             c = per_category.get((category, robot), Counts())
             lines.append(f"| {category} | {robot} | {c.judged} | {c.cells()} |")
     lines += ["", "## Per reason kind and robot", "",
-              ("The kind is the judgement's reason: no face labelled; pads press on it under the footprint's "
+              ("The kind is the judgement's reason: no face labelled; wherever the pads hold it, the weight's "
+               "torque about the closing axis exceeds what whole pads hold; pads press on it under the footprint's "
                "share; where they do, their faces first land elsewhere (a prouder neighbour, or only the "
                "fingertips' ends reach it); where they land on it, only on their ends (the pads' ends, the hand's "
                "`pad_end_margin`); too low for a pinch; lying flat (too little side above the "

@@ -97,6 +97,14 @@ class Hand:
         """The mean contact radius (m) of the narrowest patch a pad makes: a line across its width, width / 4."""
         return self.pad_half_width / 2.0
 
+    @property
+    def whole_pad_torsion_radius(self) -> float:
+        """The mean contact radius (m) of the widest patch a pad makes, its whole face (a flat wall): the mean
+        distance of the pad's rectangle from its centre, an upper bound on what its torsional friction holds."""
+        a, b = self.pad_half_width, self.pad_half_length
+        d = np.hypot(a, b)
+        return float((2 * a * b * d + a**3 * np.log((b + d) / a) + b**3 * np.log((a + d) / b)) / (6 * a * b))
+
     def pre_grasp_opening(self, width: np.ndarray | float) -> np.ndarray:
         """Finger separation while approaching a grasp of contact distance `width` (capped at the stroke)."""
         return np.minimum(np.asarray(width, dtype=np.float64) + 2.0 * self.pre_grasp_margin, self.stroke)

@@ -35,6 +35,8 @@ def test_the_reason_kinds_of_sentences() -> None:
     assert bench.reason_kind("temple: the pads press on it for at most 0 % of their footprint") == "pads' share"
     assert bench.reason_kind("rim: where the pads press on it, they first land on it at most 1.0 mm into the pad from "
                              "its end; the robotiq_2f85's pads hold from 2.0 mm") == "pads' ends"
+    assert bench.reason_kind("body: wherever the pads hold it, the 0.83 kg object's weight turns it about the "
+                             "closing axis with at least 0.55 N m") == "weight turns it"
     assert bench.reason_kind("lies flat: something new") == "other"  # the part's name is not the reason
 
 

@@ -10,7 +10,7 @@ from seggrasp.cell import FAILURES, GraspOutcome
 from seggrasp.episode import Episode, EpisodeContext, table_plane_in_object_frame
 from seggrasp.grasp import AntipodalSampler, GraspSet
 from seggrasp.grasp.antipodal import AntipodalConfig
-from seggrasp.grasp.feasibility import Feasibility, judge_requests
+from seggrasp.grasp.feasibility import Feasibility, judge_requests, whole_pad_torsion_limit
 from seggrasp.grasp.footprint import PadFootprint
 from seggrasp.hands import FRANKA_HAND, ROBOTIQ_2F85, Hand
 from seggrasp.truth import GroundTruth
@@ -33,13 +33,14 @@ def box_part(size: tuple[float, float, float]) -> tuple[trimesh.Trimesh, np.ndar
     return body_with(part)
 
 
-def judge(mesh: trimesh.Trimesh, labels: np.ndarray, hand: Hand) -> Feasibility:
-    """The part's (label 1) judgement for `hand` from the hand's own sampler's candidates."""
+def judge(mesh: trimesh.Trimesh, labels: np.ndarray, hand: Hand, mass: float | None = None) -> Feasibility:
+    """The part's (label 1) judgement for `hand` from the hand's own sampler's candidates (the object weighing
+    `mass`, its centre of mass the mesh's)."""
     config = AntipodalConfig.for_hand(hand)
     plane = table_plane_in_object_frame(mesh, np.eye(4))
-    grasps = AntipodalSampler(config, hand).generate(mesh, seed=0, table_plane=plane)
+    grasps = AntipodalSampler(config, hand).generate(mesh, seed=0, table_plane=plane, mass=mass)
     return judge_requests([1], ["body", "part"], hand, config, mesh, labels, grasps, PadFootprint(gripper=hand),
-                          plane)[1]
+                          plane, mass=mass)[1]
 
 
 @pytest.fixture(scope="module")
@@ -173,3 +174,23 @@ def test_a_part_the_pads_land_on_only_at_their_ends_is_infeasible_for_the_2f85_a
     assert float(ends.reason.split("at most ")[1].split(" mm")[0]) <= 1.5
     assert judged(ROBOTIQ_2F85, [0.0015, 0.005]).feasible  # a lower-ranked candidate whose pads reach 5 mm holds it
     assert judged(FRANKA_HAND, [0.0015]).feasible
+
+
+def test_a_part_held_only_far_from_a_heavy_body_is_infeasible_and_the_reason_names_the_torque() -> None:
+    # a 90 mm bar beside the body, longer than the stroke: the pads close across it, its length pointing at the body
+    bar = box_part((0.09, 0.02, 0.03))
+    config = AntipodalConfig.for_hand(FRANKA_HAND)
+    assert judge(*bar, FRANKA_HAND, mass=0.1).feasible
+    verdict = judge(*bar, FRANKA_HAND, mass=3.0)
+    assert not verdict.feasible
+    assert verdict.reason.startswith("part: wherever the pads hold it, the 3.00 kg object's weight turns it about the "
+                                     "closing axis with at least")
+    assert f"hold at most {whole_pad_torsion_limit(FRANKA_HAND, config):.2f} N m at 70 N" in verdict.reason
+
+
+def test_the_whole_pad_torsion_radius_is_the_pads_mean_distance_from_its_centre() -> None:
+    for hand in (ROBOTIQ_2F85, FRANKA_HAND):
+        midpoints = (np.arange(800) + 0.5) / 800 * 2 - 1  # cell centres of a grid over [-1, 1]
+        y, z = np.meshgrid(hand.pad_half_width * midpoints, hand.pad_half_length * midpoints)
+        assert hand.whole_pad_torsion_radius == pytest.approx(np.hypot(y, z).mean(), rel=1e-3)
+        assert hand.whole_pad_torsion_radius > hand.torsion_radius

@@ -5,22 +5,26 @@ poses whose width fits the stroke and whose fingers, palm and wrist clear the ta
 planned contacts on faces of the part AND pads that hold it (`PadSurface.holds`): each presses on the part over at
 least the footprint's `min_share`, both of the surface under it and of what its face first lands on, and lands
 deeper into the pad than the hand's `pad_end_margin` (`seggrasp.grasp.select.select_per_prompt` with a
-`PadFootprint` ranks such a grasp first). The share
+`PadFootprint` ranks such a grasp first), AND whose pads can hold the object's weight from turning about the
+closing axis even pressing with their whole faces (`whole_pad_torsion_limit`: the gravity torque at the grip force;
+the sampler ranks against the narrower line contact of a round part, `AntipodalConfig.torsion_limit`). The share
 is measured under the pads themselves: the footprint's `margin` widens them only for ranking (a thin part, an
 eyeglass temple, fills none of the widened pads' share yet lifts by it in the twin). When none
 does, the part's geometry names why, in one sentence with measured numbers, the first that applies of:
 
 1. the part has no face (nothing labelled as it);
-2. candidates touch it, but their pads press on it less than `min_share`, or, where they do, their faces first
+2. pads hold it, but wherever they do the weight's torque exceeds what whole pads hold (a kettle's body held
+   at 70 N by a Franka Hand's 17 mm pads, its centre of mass a hand's width away from the closing axis);
+3. candidates touch it, but their pads press on it less than `min_share`, or, where they do, their faces first
    land elsewhere (a prouder neighbour, or the part meets only the fingertips' ends), or, where they land on it,
    only within `Hand.pad_end_margin` of the pads' ends (a 2F-85's finger curves away past its pad);
-3. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
+4. it stands lower above the table than a fingertip pinch needs (`AntipodalConfig.pinch_table_clearance` +
    `pinch_min_band`);
-4. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
+5. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
    (a blade resting on its handle: the vertical chords down through it, `tallest_side`);
-5. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
+6. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
    the widest contact distance the hand closes on (`Hand.stroke` - `AntipodalConfig.width_margin`);
-6. otherwise: no collision-free pose of the hand closes on it.
+7. otherwise: no collision-free pose of the hand closes on it.
 
 The geometry is measured only for an infeasible request; a feasible one costs one footprint check of its best
 candidate.
@@ -34,7 +38,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 import trimesh
 
-from seggrasp.grasp.antipodal import RAY_EPSILON, AntipodalConfig, opposite_contacts
+from seggrasp.grasp.antipodal import (
+    RAY_EPSILON, AntipodalConfig, gravity_torque, mesh_center_of_mass, opposite_contacts,
+)
 from seggrasp.grasp.footprint import PadFootprint, PadReading
 from seggrasp.grasp.select import UNASSIGNED, assign_parts, select_per_prompt
 from seggrasp.grasp.types import GraspSet
@@ -55,10 +61,12 @@ class Feasibility:
 def judge_requests(
     requests: Sequence[int], prompts: Sequence[str], hand: Hand, config: AntipodalConfig, mesh: trimesh.Trimesh,
     face_labels: np.ndarray, grasps: GraspSet, footprint: PadFootprint, table_plane: np.ndarray,
+    center_of_mass: np.ndarray | None = None, mass: float | None = None,
 ) -> dict[int, Feasibility]:
     """Per prompt index in `requests`, whether a candidate of `grasps` (object frame, as `mesh`) holds the faces
     labelled with it (`face_labels`, one prompt index per face), judged for `hand` with the sampler's `config` and
-    the hand's `footprint`; `table_plane` (a, b, c, d) is the table top in the object frame, normal up."""
+    the hand's `footprint`; `table_plane` (a, b, c, d) is the table top in the object frame, normal up;
+    `center_of_mass` (object frame) and `mass` (kg) weigh the object as the sampler does (None: its estimates)."""
     labels = np.asarray(face_labels, dtype=np.int64)
     requests = list(requests)
     # one label per request, so the selection looks at the requested parts only
@@ -67,22 +75,60 @@ def judge_requests(
         local[labels == k] = j
     best = select_per_prompt(grasps, mesh, local, len(requests), top_k=1, footprint=footprint)
     surface = replace(footprint, margin=0.0).on(mesh)  # the pads themselves, without the ranking's safety margin
+    com = mesh_center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
+    weight = _Weight(com, config.default_mass if mass is None else float(mass), np.asarray(table_plane[:3]),
+                     whole_pad_torsion_limit(hand, config))
     parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
         is_part = local == j
-        if len(best[j]) and surface.holds(grasps.subset(best[j]), is_part).all():
+        if len(best[j]) and surface.holds(grasps.subset(best[j]), is_part).all() and \
+                weight.held(grasps.subset(best[j])).all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = grasps.subset(np.flatnonzero(parts == j))
         reading = surface.read(on_part, is_part) if len(on_part) else None
-        if reading is not None and reading.holds(footprint).any():  # a lower-ranked candidate holds it
+        holding = reading.holds(footprint) if reading is not None else np.zeros(0, dtype=bool)
+        if (holding & weight.held(on_part)).any():  # a lower-ranked candidate holds it
             judged[k] = Feasibility(True)
+        elif holding.any():
+            judged[k] = Feasibility(False, weight.reason(prompts[k], on_part.subset(np.flatnonzero(holding)), hand,
+                                                         config))
         else:
             judged[k] = Feasibility(False, _reason(prompts[k], is_part, reading, hand, config, mesh, footprint,
                                                    table_plane))
     return judged
+
+
+def whole_pad_torsion_limit(hand: Hand, config: AntipodalConfig) -> float:
+    """The most gravity torque (N m) about the closing axis two pads of `hand` hold at the sampler's grip force and
+    friction, each pressing with its whole face (`Hand.whole_pad_torsion_radius`): no grasp of the hand holds more."""
+    return 2.0 * config.friction_coefficient * config.grip_force * hand.whole_pad_torsion_radius
+
+
+@dataclass(frozen=True)
+class _Weight:
+    """The object's weight as the judgement sees it: centre of mass and up direction in the object frame, mass,
+    and the most torque about a grasp's closing axis any grasp of the hand holds (`whole_pad_torsion_limit`)."""
+
+    com: np.ndarray
+    mass: float
+    up: np.ndarray
+    limit: float
+
+    def torque(self, grasps: GraspSet) -> np.ndarray:
+        return gravity_torque(grasps.poses, self.com, self.up, self.mass)
+
+    def held(self, grasps: GraspSet) -> np.ndarray:
+        """Per grasp, whether the pads' torsional friction can hold the weight's torque about its closing axis."""
+        return self.torque(grasps) <= self.limit
+
+    def reason(self, name: str, holding: GraspSet, hand: Hand, config: AntipodalConfig) -> str:
+        """The sentence for a part the pads press on well enough, but where the object would always turn."""
+        return (f"{name}: wherever the pads hold it, the {self.mass:.2f} kg object's weight turns it about the "
+                f"closing axis with at least {self.torque(holding).min():.2f} N m; the {hand.name}'s pads hold at "
+                f"most {self.limit:.2f} N m at {config.grip_force:.0f} N, pressing with their whole faces")
 
 
 def _reason(
