@@ -240,16 +240,8 @@ def plan_slots(
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
     else:
-        if plan.policy is not None:
-            chosen_per_prompt = plan.policy.select(grasps, observation.mesh, plan.face_probabilities, depth)
-            if footprint.gripper.pad_end_margin > 0:  # those whose pads land only on their ends go last
-                surface = footprint.on(observation.mesh)
-                chosen_per_prompt = [chosen[np.argsort(~surface.lands_on_pads(grasps.subset(chosen)), kind="stable")]
-                                     for chosen in chosen_per_prompt]
-        else:
-            chosen_per_prompt = select_per_prompt(grasps, observation.mesh, plan.selection_labels, n_prompts, depth,
-                                                  footprint)
-        per_prompt = [grasps.subset(chosen) for chosen in chosen_per_prompt]
+        per_prompt = [grasps.subset(chosen)
+                      for chosen in rank_per_prompt(plan, grasps, observation.mesh, n_prompts, depth, footprint)]
     slots = []
     for k in targets:
         chosen = per_prompt[k].transformed(observation.T_world_obj)
@@ -263,6 +255,22 @@ def plan_slots(
                 grasp = chosen.subset([rank]) if rank < len(chosen) else None
             slots.append(Slot(plan.method, plan.detector, k, rank, grasp, len(chosen)))
     return slots
+
+
+def rank_per_prompt(
+    plan: PartPlan, grasps: GraspSet, mesh: trimesh.Trimesh, n_prompts: int, depth: int, footprint: PadFootprint,
+) -> list[np.ndarray]:
+    """Per prompt, the indices of the `depth` grasps of `grasps` (object frame, on `mesh`) the plan ranks first: its
+    policy's most probably on the part (those whose pads land only on their ends last), or `select_per_prompt`'s
+    on the faces the plan selects on, those whose pads hold them first."""
+    if plan.policy is None:
+        return select_per_prompt(grasps, mesh, plan.selection_labels, n_prompts, depth, footprint)
+    chosen_per_prompt = plan.policy.select(grasps, mesh, plan.face_probabilities, depth)
+    if footprint.gripper.pad_end_margin > 0:  # those whose pads land only on their ends go last
+        surface = footprint.on(mesh)
+        chosen_per_prompt = [chosen[np.argsort(~surface.lands_on_pads(grasps.subset(chosen)), kind="stable")]
+                             for chosen in chosen_per_prompt]
+    return chosen_per_prompt
 
 
 def _reachable_first(grasps: GraspSet, reaches: Callable[[np.ndarray, float], bool] | None, top_k: int) -> np.ndarray:
@@ -423,22 +431,26 @@ class Episode:
         sampler's `on_faces`)."""
         o = self.observation
         plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
-        # the context's centre of mass is in the twin's object frame; a perceived mesh lives in the world, so there
-        # the generator estimates it (the antipodal sampler: uniform density, as on the real cell)
-        com, mass = (None, None) if o.perceived else (self.context.center_of_mass, self.context.mass)
+        com, mass = self._weight()
         return self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane, center_of_mass=com,
                                        mass=mass, **part)
 
-    def planning_grasps(self, labels: np.ndarray, prompts: Sequence[int]) -> GraspSet:
-        """The episode's candidates (`grasps`) and, for each prompt in `prompts` whose part (the faces `labels`
-        gives it) fewer than top-k of them hold (`PadSurface.holds`, as `select_per_prompt` ranks them), the
-        candidates `part_grasps` samples on that part; only an `AntipodalSampler` samples on a part."""
+    def _weight(self) -> tuple[np.ndarray | None, float | None]:
+        """The object's centre of mass (planning mesh's frame) and mass as planning knows them. The context's centre
+        of mass is in the twin's object frame; a perceived mesh lives in the world, so there both are None and the
+        planner estimates them (the antipodal sampler: uniform density, as on the real cell)."""
+        return (None, None) if self.observation.perceived else (self.context.center_of_mass, self.context.mass)
+
+    def planning_grasps(self, plan: PartPlan, prompts: Sequence[int]) -> GraspSet:
+        """The episode's candidates (`grasps`) and, for each prompt in `prompts` whose part (the faces the plan
+        selects on) fewer of the plan's top-k of them hold (`rank_per_prompt`, `PadSurface.holds`) than top-k,
+        the candidates `part_grasps` samples on that part; only an `AntipodalSampler` samples on a part."""
         grasps = self.grasps()
         if not prompts or not isinstance(self.generator, AntipodalSampler):
             return grasps
         mesh, top_k = self.observation.mesh, self.settings.top_k
-        labels = np.asarray(labels)
-        chosen = select_per_prompt(grasps, mesh, labels, len(self.context.prompts), top_k, self.footprint)
+        labels = np.asarray(plan.selection_labels)
+        chosen = rank_per_prompt(plan, grasps, mesh, len(self.context.prompts), top_k, self.footprint)
         surface = self.footprint.on(mesh)
         more = []
         for k in prompts:
@@ -448,8 +460,8 @@ class Episode:
         return GraspSet.concatenate([grasps, *more])
 
     def part_grasps(self, is_part: np.ndarray) -> GraspSet:
-        """Candidates whose first contact is drawn on the faces `is_part` marks (object frame; sampled once per
-        part with the episode's seed)."""
+        """Candidates whose first contact is drawn on or next to the faces `is_part` marks (`AntipodalSampler`'s
+        `on_faces`; object frame; sampled once per part with the episode's seed)."""
         key = np.packbits(is_part).tobytes()
         if key not in self._part_grasps:
             self._part_grasps[key] = self._generate(on_faces=is_part)
@@ -468,7 +480,7 @@ class Episode:
         judged = self.feasibility(plan, indices)
         feasible = [k for k in indices if judged[k].feasible]
         grasps = GraspSet.empty() if plan.own_grasps is not None else \
-            self.planning_grasps(plan.selection_labels, feasible)
+            self.planning_grasps(plan, feasible)
         planned = plan_slots(plan, grasps, self.observation, len(self.context.prompts), feasible, self.settings.top_k,
                              self.reaches, self.footprint)
         slots = []
@@ -489,11 +501,13 @@ class Episode:
         config = self.generator.config if isinstance(self.generator, AntipodalSampler) else \
             AntipodalConfig.for_hand(self.hand)
 
+        com, mass = self._weight()
+
         def judge(requests: list[int], labels: np.ndarray) -> dict[int, Feasibility]:
             if not requests:
                 return {}
             return judge_requests(requests, self.context.prompts, self.hand, config, o.mesh, labels, self.grasps(),
-                                  self.footprint, plane)
+                                  self.footprint, plane, com, mass)
 
         if self.truth_on_mesh is None:
             return judge(list(indices), plan.selection_labels)

@@ -327,14 +327,40 @@ def test_a_part_too_few_candidates_hold_gets_candidates_sampled_on_it(box_with_k
 
     everywhere = episode.grasps()
     assert holding(everywhere, 0) >= 10 and holding(everywhere, 1) < 10  # the knob is 3 % of the surface
-    assert len(episode.planning_grasps(labels, [0])) == len(everywhere)  # the body has enough: nothing added
+    oracle = episode.plan("oracle")
+    assert len(episode.planning_grasps(oracle, [0])) == len(everywhere)  # the body has enough: nothing added
     assert sampler.calls == {"everywhere": 1, "on a part": 0}
-    topped_up = episode.planning_grasps(labels, [0, 1])
+    topped_up = episode.planning_grasps(oracle, [0, 1])
     assert np.array_equal(topped_up.poses[: len(everywhere)], everywhere.poses)
-    assert holding(topped_up, 1) >= 10 and holding(topped_up, 0) == holding(everywhere, 0)
+    assert holding(topped_up, 1) >= 10 and holding(topped_up, 0) >= holding(everywhere, 0)
     slots = episode.slots(episode.plan("oracle"), ["knob"])
     assert len(slots) == 10 and all(s.grasp is not None and s.n_candidates == 10 for s in slots)
     assert sampler.calls == {"everywhere": 1, "on a part": 1}  # the knob's candidates are sampled once
+
+
+class KnobFirstPolicy:
+    """A part policy that ranks, for every prompt, the candidates whose contacts lie on the knob first."""
+
+    def __init__(self, labels: np.ndarray) -> None:
+        self.labels = labels
+
+    def select(self, grasps: GraspSet, mesh, face_probs: np.ndarray, top_k: int) -> list[np.ndarray]:
+        _, _, faces = trimesh.proximity.closest_point(mesh, grasps.contacts[:, 0])
+        order = np.argsort(self.labels[faces] != 1, kind="stable")[:top_k]
+        return [order for _ in range(face_probs.shape[1])]
+
+
+def test_the_top_up_follows_the_plans_own_ranking(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
+    sampler = CountingSampler(AntipodalConfig(n_surface_samples=300, envelope_centres=0))
+    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    everywhere = episode.grasps()
+    # enough candidates hold the body, but the policy ranks the knob's first: the body's part is sampled too
+    policy_plan = PartPlan("seggrasp", "test", labels, face_probabilities=np.eye(2)[labels],
+                           policy=KnobFirstPolicy(labels))
+    assert len(episode.planning_grasps(policy_plan, [0])) > len(everywhere)
+    assert sampler.calls == {"everywhere": 1, "on a part": 1}
 
 
 def test_segmenter_reuses_given_coarse_scores(cylinder) -> None:
