@@ -230,12 +230,11 @@ def plan_slots(
     plan: PartPlan, grasps: GraspSet, observation: Observation, n_prompts: int, targets: Sequence[int], top_k: int,
     reaches: Callable[[np.ndarray, float], bool] | None = None, footprint: PadFootprint = PadFootprint(),
 ) -> list[Slot]:
-    """The top-k slots of each target prompt: the plan's own grasps (shapegrasp), the grasps its policy ranks most
-    probably on the part (`PartPlan.policy`; those whose pads land only on their ends last), or the best of `grasps`
-    on the faces the plan selects on, those whose pads hold them first (`footprint`, the cell's hand's,
-    `PadSurface.holds`); moved into the world. With `reaches` (world pose, width -> whether the cell would execute
-    the grasp), the reachable grasps among the best `REACH_DEPTH` x top-k (at least `MIN_REACH_DEPTH`) come first,
-    in rank order; unreachable ones fill the slots left."""
+    """The top-k slots of each target prompt: the plan's own grasps (shapegrasp) or the grasps of `grasps` the plan
+    ranks first (`rank_per_prompt`, with `footprint`, the cell's hand's); moved into the world. With `reaches`
+    (world pose, width -> whether the cell would execute the grasp), the reachable grasps among the best
+    `REACH_DEPTH` x top-k (at least `MIN_REACH_DEPTH`) come first, in rank order; unreachable ones fill the slots
+    left."""
     depth = top_k if reaches is None else max(REACH_DEPTH * top_k, MIN_REACH_DEPTH)
     if plan.own_grasps is not None:
         per_prompt = [plan.own_grasps[k] for k in range(n_prompts)]
