@@ -332,7 +332,8 @@ def _infeasible(methods: dict) -> list[str]:
     parts = [[part, str(v["requests"]), v["reason"]] for part, v in m.get("infeasible_parts", {}).items()]
     lines = ["", "## Requests the hand cannot hold", "",
              "Judged per request before the robot moves, from the labelled mesh: no candidate grasp has both contacts "
-             "on the part with the pads pressing on it (seggrasp/grasp/feasibility.py). Such a request is recorded "
+             "on the part with the pads pressing on it and able to keep the object's weight from turning it "
+             "(seggrasp/grasp/feasibility.py). Such a request is recorded "
              f"as `infeasible`, not executed, and counts as failed in every Suc. but the feasible one ({name}'s "
              "records).", "", *_table(["category", "requests", "infeasible", f"{name} Suc. (feasible requests)"], rows)]
     if parts:
