@@ -120,13 +120,15 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         before, after = ([r for run in runs for r in read_trials(run)] for runs in (args.before, args.after))
-        robots = sorted({robot_of(r) for r in before} & {robot_of(r) for r in after})
+        systems = [{robot_of(r) for r in records} for records in (before, after)]
+        robots = sorted(set.intersection(*systems))
         if not robots:
             raise ValueError("the two runs share no robot system")
+        named = len(set.union(*systems)) > 1  # a system only one side ran is left out, and the sections say so
         sections = [(method, robot) for method in args.methods.split(",") for robot in robots]
         lines = [line for method, robot in sections
-                 for line in (f"## `{method}`" + (f" on {robot}" if len(robots) > 1 else ""), "",
-                              *compare(before, after, method, robot if len(robots) > 1 else None), "")]
+                 for line in (f"## `{method}`" + (f" on {robot}" if named else ""), "",
+                              *compare(before, after, method, robot), "")]
     except (FileNotFoundError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

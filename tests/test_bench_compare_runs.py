@@ -91,3 +91,16 @@ def test_each_side_may_be_several_runs_one_per_robot_system(tmp_path):
     sections = page.read_text().split("## ")[1:]
     assert [s.splitlines()[0] for s in sections] == ["`oracle` on panda", "`oracle` on ur5"]
     assert f"Before: `{ur5}`, `{panda}`; after: `{after}`." in page.read_text()
+
+
+def test_a_system_only_one_side_ran_is_left_out_of_the_other_side_too(tmp_path):
+    # before on both systems, after on the Panda alone: the UR5's records must not count as the Panda's
+    before = _run(tmp_path / "before", {}, robots={"ur5": {("mug_a", "handle"): 0}, "panda": {("mug_a", "handle"): 4}})
+    after = _run(tmp_path / "after", {}, robots={"panda": {("mug_a", "handle"): 2}})
+    page = tmp_path / "page.md"
+    assert bench_compare_runs.main(["--before", str(before), "--after", str(after), "--out", str(page)]) == 0
+    sections = page.read_text().split("## ")[1:]
+    assert [s.splitlines()[0] for s in sections] == ["`oracle` on panda"]
+    row = next(line for line in sections[0].splitlines() if line.startswith("| Suc. (all slots)"))
+    assert "| 1.000 | 0.500 | -0.500 ±" in row
+    assert "no_grasp 0 → 2" in sections[0]
