@@ -14,7 +14,7 @@ does, the part's geometry names why, in one sentence with measured numbers, the 
 
 1. the part has no face (nothing labelled as it);
 2. pads hold it, but wherever they do the weight's torque exceeds what whole pads hold (a kettle's body held
-   at 70 N by a Franka Hand's 17 mm pads, its centre of mass a hand's width away from the closing axis);
+   by a Franka Hand's small pads, its centre of mass a hand's width away from the closing axis);
 3. candidates touch it, but their pads press on it less than `min_share`, or, where they do, their faces first
    land elsewhere (a prouder neighbour, or the part meets only the fingertips' ends), or, where they land on it,
    only within `Hand.pad_end_margin` of the pads' ends (a 2F-85's finger curves away past its pad);
