@@ -145,7 +145,12 @@ class AntipodalConfig:
     @property
     def torsion_limit(self) -> float:
         """Gravity torque (N m) about the grasp axis the pads' friction holds."""
-        return 2.0 * self.friction_coefficient * self.grip_force * self.torsion_radius
+        return self.torque_held(self.torsion_radius)
+
+    def torque_held(self, radius: float) -> float:
+        """Torque (N m) about the closing axis two pads' friction holds at the grip force, each pad's contact patch
+        of mean radius `radius` (m): 2 mu F r."""
+        return 2.0 * self.friction_coefficient * self.grip_force * radius
 
 
 class AntipodalSampler:

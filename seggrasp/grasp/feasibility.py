@@ -78,19 +78,19 @@ def judge_requests(
     com = mesh_center_of_mass(mesh) if center_of_mass is None else np.asarray(center_of_mass, dtype=np.float64)
     weight = _Weight(com, config.default_mass if mass is None else float(mass), np.asarray(table_plane[:3]),
                      whole_pad_torsion_limit(hand, config))
+    held = weight.held(grasps)  # per candidate, whether whole pads could keep the weight from turning it
     parts: np.ndarray | None = None  # each candidate's part, found once the best-ranked one falls short
     judged = {}
     for j, k in enumerate(requests):
         is_part = local == j
-        if len(best[j]) and surface.holds(grasps.subset(best[j]), is_part).all() and \
-                weight.held(grasps.subset(best[j])).all():
+        if len(best[j]) and surface.holds(grasps.subset(best[j]), is_part).all() and held[best[j]].all():
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
         on_part = grasps.subset(np.flatnonzero(parts == j))
         reading = surface.read(on_part, is_part) if len(on_part) else None
         holding = reading.holds(footprint) if reading is not None else np.zeros(0, dtype=bool)
-        if (holding & weight.held(on_part)).any():  # a lower-ranked candidate holds it
+        if (holding & held[parts == j]).any():  # a lower-ranked candidate holds it
             judged[k] = Feasibility(True)
         elif holding.any():
             judged[k] = Feasibility(False, weight.reason(prompts[k], on_part.subset(np.flatnonzero(holding)), hand,
@@ -104,7 +104,7 @@ def judge_requests(
 def whole_pad_torsion_limit(hand: Hand, config: AntipodalConfig) -> float:
     """The most gravity torque (N m) about the closing axis two pads of `hand` hold at the sampler's grip force and
     friction, each pressing with its whole face (`Hand.whole_pad_torsion_radius`): no grasp of the hand holds more."""
-    return 2.0 * config.friction_coefficient * config.grip_force * hand.whole_pad_torsion_radius
+    return config.torque_held(hand.whole_pad_torsion_radius)
 
 
 @dataclass(frozen=True)
