@@ -289,7 +289,8 @@ def build_spatula(p: dict) -> Built:
 
 # -------------------------------------------------------------------------------------------------------- bottle
 def build_bottle(p: dict) -> Built:
-    """Bottle: revolved body (chamfered base, shoulder, neck with support ring) + a ridged screw or crown cap."""
+    """Bottle: revolved body (chamfered base, shoulder, neck with a support ring under a screw cap; a crown-capped
+    glass bottle has none) + a ridged screw or crown cap."""
     radius, height = p["radius"], p["height"]
     r_neck, shoulder, neck_top = p["neck_radius"], p["shoulder_start"] * height, height
     n = int(p["segments"])
@@ -297,8 +298,8 @@ def build_bottle(p: dict) -> Built:
              for s in np.linspace(0.0, 1.0, 10)]
     ring_z = p["ring_height"] * height
     profile = [(0.0, 0.0), (radius - 0.004, 0.0), (radius, 0.004), (radius, shoulder), *curve[1:],
-               (r_neck, ring_z - 0.002), (r_neck + 0.0025, ring_z - 0.001), (r_neck + 0.0025, ring_z + 0.001),
-               (r_neck, ring_z + 0.002), (r_neck, neck_top), (0.0, neck_top)]
+               *([(r_neck, ring_z - 0.002), (r_neck + 0.0025, ring_z - 0.001), (r_neck + 0.0025, ring_z + 0.001),
+                  (r_neck, ring_z + 0.002)] if p["support_ring"] else []), (r_neck, neck_top), (0.0, neck_top)]
     body = revolve(profile, n, "bottle body")
     cap_r, cap_h = p["cap_radius"], p["cap_height"]
     cap_bottom = neck_top - cap_h + 0.003
@@ -446,7 +447,7 @@ _SPATULA = dict(handle_length=0.16, handle_width=0.024, handle_thickness=0.015, 
                 blade_length=0.1, blade_width=0.07, blade_squareness=5.0, neck_length=0.05, neck_width=0.018,
                 neck_thickness=0.004, slots=0)
 _BOTTLE = dict(radius=0.033, height=0.2, neck_radius=0.0125, shoulder_start=0.62, neck_start=0.85, ring_height=0.93,
-               cap_radius=0.0155, cap_height=0.02, cap_ridges=36, segments=48)
+               cap_radius=0.0155, cap_height=0.02, cap_ridges=36, segments=48, support_ring=True)
 _PAN = dict(radius_bottom=0.085, radius_top=0.11, height=0.045, wall=0.003, handle_height=0.7, handle_length=0.18,
             handle_width=0.026, handle_thickness=0.016, handle_angle=12.0, segments=64)
 _TOOTHBRUSH = dict(handle_length=0.15, handle_width=0.013, handle_thickness=0.009, bow=0.0, grip_swell=0.2,
@@ -510,7 +511,8 @@ OBJECT_SPECS: tuple[ObjectSpec, ...] = (
           handle_lift=0.025),
     _spec("bottle_water", "bottle", _BOTTLE, ("hdpe_cap", "pet_bottle_bulk")),
     _spec("bottle_beer", "bottle", _BOTTLE, ("tin_cap", "glass_bottle_bulk"), radius=0.031, height=0.23,
-          shoulder_start=0.55, neck_start=0.72, ring_height=0.95, cap_radius=0.0148, cap_height=0.007, cap_ridges=21),
+          shoulder_start=0.55, neck_start=0.72, ring_height=0.95, cap_radius=0.0148, cap_height=0.007, cap_ridges=21,
+          support_ring=False),
     _spec("bottle_sauce", "bottle", _BOTTLE, ("hdpe_cap", "pet_bottle_bulk"), radius=0.026, height=0.19,
           neck_radius=0.011, shoulder_start=0.7, neck_start=0.82, ring_height=0.9, cap_radius=0.0145,
           cap_height=0.025, cap_ridges=30),
