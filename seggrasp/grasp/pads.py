@@ -1,6 +1,6 @@
 """What a parallel gripper's pads sweep and touch as they close: the surface points between them, where each pad
-first touches, how far along the pads the touched surface reaches, how squarely it faces them. Shared by the
-antipodal sampler, the pad footprint and the ShapeGrasp baseline's planned contacts."""
+first touches, how far along the pads the touched surface reaches, how squarely it faces them. Shared by the antipodal sampler, the pad
+footprint and the ShapeGrasp baseline's planned contacts."""
 
 from __future__ import annotations
 
