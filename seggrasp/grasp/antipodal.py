@@ -21,8 +21,7 @@
 6. Footprint: the pads close on whatever is widest in their sweep (pad width x length, over the opening), so the
    grasp's width and contact points are taken from the surface points in that footprint, and the pose is centred
    between them. A level or envelope pose is kept only if the surface there faces the pads (`level_facing_deg`);
-   an envelope's antipodality is measured from that surface. A pair's pose whose pads stop on wider surface is
-   kept only if the surface each pad presses on lies inside its friction cone (`pad_facing`).
+   an envelope's antipodality is measured from that surface.
 7. Gravity torque: with the centre of mass (given, else the mesh's uniform-density estimate, which is all a real
    cell knows of a perceived object) and the table's up direction, the torque of the object's weight about the
    grasp axis after lifting; a grasp whose torque exceeds what the pads' torsional friction holds
@@ -42,7 +41,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from seggrasp.grasp.clearance import COLLISION_CHUNK, collision_free
-from seggrasp.grasp.pads import box_corners, pad_bands, pad_facing, pressed_centres, sweep
+from seggrasp.grasp.pads import box_corners, pad_bands, pressed_centres, sweep
 from seggrasp.grasp.poses import envelope_poses, level_poses, poses_around_axes
 from seggrasp.grasp.types import GraspSet
 from seggrasp.hands import ROBOTIQ_2F85, Hand
@@ -237,7 +236,7 @@ class AntipodalSampler:
         poses, openings, contacts = poses[free].copy(), openings[free], contacts[free]
         pose_antipodality, from_sweep, is_envelope = pose_antipodality[free], from_sweep[free], is_envelope[free]
         poses[:, :3, 3] -= contact_depth[:, None] * poses[:, :3, 2]
-        widths, alignment, moved = self._apply_footprint(
+        widths, alignment = self._apply_footprint(
             poses, contacts, widths[free].copy(), openings, cloud, cloud_normals, from_sweep
         )
         # an envelope's contacts are the middle of what each pad presses on (its outermost point may be anywhere on a
@@ -250,21 +249,10 @@ class AntipodalSampler:
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
             1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)
-        # a pair's pose whose pads stop on wider surface than its contacts holds only if that surface lies inside the
-        # friction cones too (a pad stopped on a flank sloped further off slides along it, onto whatever is next)
-        moved_pair = np.flatnonzero(moved & ~from_sweep)
-        pads_in_cone = np.ones(len(poses), dtype=bool)
-        for start in range(0, len(moved_pair), COLLISION_CHUNK):
-            chunk = moved_pair[start : start + COLLISION_CHUNK]
-            facing_cos = pad_facing(poses[chunk], openings[chunk], cloud, cloud_normals, cfg.pad_half_width,
-                                    cfg.pad_half_length, cfg.pinch_band_tolerance)
-            pads_in_cone[chunk] = facing_cos >= np.cos(half_angle)
-            pose_antipodality[chunk] = np.minimum(pose_antipodality[chunk], np.clip(
-                1.0 - np.arccos(np.clip(facing_cos, -1.0, 1.0)) / half_angle, 0.0, 1.0))
         # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; a pinch
         # must touch the part over `pinch_min_band` of its pads
         facing = alignment >= np.cos(np.deg2rad(cfg.level_facing_deg))
-        fits = (widths <= self.gripper.stroke - cfg.width_margin) & (facing | ~from_sweep) & pads_in_cone
+        fits = (widths <= self.gripper.stroke - cfg.width_margin) & (facing | ~from_sweep)
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
@@ -358,12 +346,11 @@ class AntipodalSampler:
         """Where the pads' sweep (pad footprint over the opening) holds surface points wider apart than the
         contact pair, or for the poses `fromsweep` (not aimed at a pair's contacts) always, the pads stop on
         the sweep's outermost points: move the contacts there, centre the pose between them and return the widths
-        they give, per pose, how well the surface at the worse of the two outermost points faces its pad (the
-        cosine of the angle between its outward normal and the pad's closing direction) and which poses were moved;
-        poses and contacts are updated in place."""
+        they give and, per pose, how well the surface at the worse of the two outermost points faces its pad (the
+        cosine of the angle between its outward normal and the pad's closing direction); poses and contacts are
+        updated in place."""
         cfg = self.config
         alignment = np.full(len(poses), -1.0)
-        moved = np.zeros(len(poses), dtype=bool)
         for start in range(0, len(poses), COLLISION_CHUNK):
             sl = slice(start, start + COLLISION_CHUNK)
             span, x_low, x_high, low, high = sweep(poses[sl], openings[sl], cloud, cfg.pad_half_width,
@@ -378,8 +365,7 @@ class AntipodalSampler:
                 contacts[index, 0] = cloud[low[wider]]
                 contacts[index, 1] = cloud[high[wider]]
                 widths[index] = span[wider]
-                moved[index] = True
-        return widths, alignment, moved
+        return widths, alignment
 
     def _above_plane(self, poses: np.ndarray, openings: np.ndarray, plane: np.ndarray, clearance: float) -> np.ndarray:
         """True where every corner of every gripper box is at least `clearance` above the plane."""

@@ -1,5 +1,5 @@
 """What a parallel gripper's pads sweep and touch as they close: the surface points between them, where each pad
-first touches, how far along the pads the touched surface reaches, how squarely it faces them. Shared by the antipodal sampler, the pad
+first touches, how far along the pads the touched surface reaches. Shared by the antipodal sampler, the pad
 footprint and the ShapeGrasp baseline's planned contacts."""
 
 from __future__ import annotations
@@ -68,20 +68,6 @@ def pad_bands(
         extent = np.where(touching, z, -np.inf).max(axis=1) - np.where(touching, z, np.inf).min(axis=1)
         bands.append(np.where(touching.any(axis=1), extent, 0.0))
     return np.minimum(*bands)
-
-
-def pad_facing(poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, normals: np.ndarray, half_width: float,
-               half_length: float, tolerance: float) -> np.ndarray:
-    """Per pose, how squarely the surface each pad presses on faces it: over the points `pad_touches` finds within
-    `tolerance` of a pad's first touch, the best cosine between a point's outward normal (`normals`, one per cloud
-    point) and the direction the pad closes in; the worse of the two pads (-1 where a pad touches nothing). A pad
-    stopped on a flank sloped further off than the friction cone slides along it."""
-    low_pad, high_pad, _ = pad_touches(poses, openings, cloud, half_width, half_length, tolerance)
-    facing = []
-    for sign, touching in ((1.0, low_pad), (-1.0, high_pad)):  # the -x pad closes along +x, meeting normals along -x
-        cosines = -sign * np.einsum("mk,gk->gm", normals, poses[:, :3, 0])
-        facing.append(np.where(touching, cosines, -1.0).max(axis=1))
-    return np.minimum(*facing)
 
 
 def pressed_centres(poses: np.ndarray, openings: np.ndarray, cloud: np.ndarray, half_width: float, half_length: float,
