@@ -296,10 +296,13 @@ def build_bottle(p: dict) -> Built:
     n = int(p["segments"])
     curve = [(r_neck + (radius - r_neck) * (0.5 + 0.5 * np.cos(np.pi * s)), shoulder + (p["neck_start"] * height - shoulder) * s)
              for s in np.linspace(0.0, 1.0, 10)]
-    ring_z = p["ring_height"] * height
-    profile = [(0.0, 0.0), (radius - 0.004, 0.0), (radius, 0.004), (radius, shoulder), *curve[1:],
-               *([(r_neck, ring_z - 0.002), (r_neck + 0.0025, ring_z - 0.001), (r_neck + 0.0025, ring_z + 0.001),
-                  (r_neck, ring_z + 0.002)] if p["support_ring"] else []), (r_neck, neck_top), (0.0, neck_top)]
+    ring = []
+    if p["support_ring"]:
+        ring_z = p["ring_height"] * height
+        ring = [(r_neck, ring_z - 0.002), (r_neck + 0.0025, ring_z - 0.001), (r_neck + 0.0025, ring_z + 0.001),
+                (r_neck, ring_z + 0.002)]
+    profile = [(0.0, 0.0), (radius - 0.004, 0.0), (radius, 0.004), (radius, shoulder), *curve[1:], *ring,
+               (r_neck, neck_top), (0.0, neck_top)]
     body = revolve(profile, n, "bottle body")
     cap_r, cap_h = p["cap_radius"], p["cap_height"]
     cap_bottom = neck_top - cap_h + 0.003

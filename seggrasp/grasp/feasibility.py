@@ -87,10 +87,11 @@ def judge_requests(
             judged[k] = Feasibility(True)
             continue
         parts = assign_parts(grasps, mesh, local) if parts is None else parts
-        on_part = grasps.subset(np.flatnonzero(parts == j))
+        mine = np.flatnonzero(parts == j)
+        on_part = grasps.subset(mine)
         reading = surface.read(on_part, is_part) if len(on_part) else None
         holding = reading.holds(footprint) if reading is not None else np.zeros(0, dtype=bool)
-        if (holding & held[parts == j]).any():  # a lower-ranked candidate holds it
+        if (holding & held[mine]).any():  # a lower-ranked candidate holds it
             judged[k] = Feasibility(True)
         elif holding.any():
             judged[k] = Feasibility(False, weight.reason(prompts[k], on_part.subset(np.flatnonzero(holding)), hand,
