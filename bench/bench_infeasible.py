@@ -51,7 +51,7 @@ DEFAULT_OUT = Path("docs/results/infeasible-requests.md")
 THRESHOLD = 0.05
 #: The relaxed sampler (the strict defaults: `AntipodalConfig`).
 RELAXED_PINCH_BAND = 0.0  # m of pad on the part's side a pinch needs (strict: pinch_min_band, 0.5 mm)
-RELAXED_WIDTH_MARGIN = 0.001  # m below the stroke the contact distance must stay (strict: width_margin, 5 mm)
+RELAXED_WIDTH_MARGIN = 0.001  # m below the stroke the contact distance must stay (strict: the hand's width_margin)
 RELAXED_FACING_DEG = 30.0  # a level or envelope pose's pads may meet surface this far off (strict: 18 deg)
 RELAXED_PINCH_TILT_DEG = 20.0  # a pinch may come this far off straight down (strict: 10 deg)
 RELAXED_SAMPLES = 2  # times the strict sampler's surface samples

@@ -49,7 +49,9 @@ class Hand:
     - `finger_boxes` move with the fingers; each is (inner x, outer x, half y, z min, z max) with x measured
       outwards from the finger's inner face at half the opening (mirrored for the other finger);
       `centre_boxes` are fixed and centred on the z axis: (half x, half y, z min, z max);
-    - `pre_grasp_margin`: extra opening on each side of the contacts while approaching;
+    - `pre_grasp_margin`: extra opening on each side of the contacts while approaching; `width_margin`: how far
+      below the stroke a planned grasp's contact distance stays (the fingers open no wider than the stroke, so this
+      is the least they clear the contacts by on the way in, both sides together);
     - `contact_depths`: where along the pads (m from their centre, + towards the fingertips) the sampler tries the
       contacts, deepest first; `pinch_contact_depths`: those of a fingertip pinch of a part lying flat, and
       `pinch_table_clearance` how far above the table the fingertips stay in one (the cell must allow them that
@@ -69,6 +71,7 @@ class Hand:
     finger_boxes: tuple[tuple[float, float, float, float, float], ...]
     centre_boxes: tuple[tuple[float, float, float, float], ...]
     pre_grasp_margin: float
+    width_margin: float
     contact_depths: tuple[float, ...]
     pinch_contact_depths: tuple[float, ...]
     pinch_table_clearance: float
@@ -87,6 +90,8 @@ class Hand:
             raise ValueError(f"{self.name}: contact depths must lie on the pad (|d| < {self.pad_half_length})")
         if min(self.stroke, self.pad_half_width, self.pad_half_length) <= 0:
             raise ValueError(f"{self.name}: stroke and pad size must be positive")
+        if not 0 <= self.width_margin < self.stroke:
+            raise ValueError(f"{self.name}: width_margin must lie within the stroke (0 to {self.stroke} m)")
         if self.pinch_table_clearance < 0:
             raise ValueError(f"{self.name}: pinch_table_clearance must not be negative")
         if not 0 <= self.pad_end_margin < 2 * self.pad_half_length:
@@ -140,6 +145,7 @@ ROBOTIQ_2F85 = Hand(
         (0.045, 0.045, -0.270, -0.150),  # the wrist behind it
     ),
     pre_grasp_margin=0.012,
+    width_margin=0.005,
     # 3 mm steps, never within 6.75 mm of either end of the 37.5 mm pads
     contact_depths=(-0.012, -0.009, -0.006, -0.003, 0.0, 0.003, 0.006, 0.009, 0.012),
     # 3.75 / 2.25 mm from the pad's end (the pad still touches the part's side from there to its top)
@@ -176,6 +182,9 @@ FRANKA_HAND = Hand(
         (0.050, 0.050, -0.2600, -0.1295),  # the wrist (panda_link7 and the flange) behind it
     ),
     pre_grasp_margin=0.012,
+    # 1 mm less than the 2F-85's: the gooseneck kettle's body is held only across its top, 75.1-75.9 mm wide
+    # (docs/results/panda-width-margin-oracle-seeds0-4.md)
+    width_margin=0.004,
     # 3 mm steps within the 17.6 mm pad, 2.8 mm clear of either end
     contact_depths=(-0.006, -0.003, 0.0, 0.003, 0.006),
     pinch_contact_depths=(0.0065,),

@@ -58,12 +58,12 @@ def test_a_thin_plate_lying_flat_is_infeasible_and_the_reason_names_its_height_a
 
 
 def test_a_part_wider_than_the_franka_hand_s_stroke_is_infeasible_for_it_and_feasible_for_the_2f85() -> None:
-    cube = box_part((0.078, 0.078, 0.078))  # within the 2F-85's 80 mm, beyond the Franka Hand's 75 mm
+    cube = box_part((0.078, 0.078, 0.078))  # within the 2F-85's 80 mm, beyond the Franka Hand's 76 mm
     assert judge(*cube, ROBOTIQ_2F85) == Feasibility(True)
     franka = judge(*cube, FRANKA_HAND)
     assert not franka.feasible
-    assert franka.reason == ("part: narrowest section 78 mm, wider than the 75 mm the franka_hand closes on "
-                             "(80 mm stroke less 5 mm)")
+    assert franka.reason == ("part: narrowest section 78 mm, wider than the 76 mm the franka_hand closes on "
+                             "(80 mm stroke less 4 mm)")
 
 
 def test_an_ordinary_handle_is_feasible() -> None:

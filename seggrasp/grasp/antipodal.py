@@ -64,7 +64,7 @@ class AntipodalConfig:
     near_com_scale: float = 0.05  # m
     friction_coefficient: float = 0.5
     min_width: float = 0.001
-    width_margin: float = 0.005  # contact distance must stay this far below the stroke
+    width_margin: float = ROBOTIQ_2F85.width_margin  # contact distance must stay this far below the stroke (the hand's)
     collision_point_spacing: float = 0.004
     min_collision_points: int = 1500
     max_collision_points: int = 6000
@@ -128,12 +128,12 @@ class AntipodalConfig:
 
     @classmethod
     def for_hand(cls, hand: Hand, **settings) -> "AntipodalConfig":
-        """The sampler's parameters for `hand`: its pads, contact depths, pinch clearance, default grip force and
-        torsion radius; `settings` override any field (e.g. `grip_force`)."""
+        """The sampler's parameters for `hand`: its pads, contact depths, width margin, pinch clearance, default grip
+        force and torsion radius; `settings` override any field (e.g. `grip_force`)."""
         return cls(**{
             "pad_half_width": hand.pad_half_width, "pad_half_length": hand.pad_half_length,
             "contact_depths": hand.contact_depths, "pinch_contact_depths": hand.pinch_contact_depths,
-            "pinch_table_clearance": hand.pinch_table_clearance,
+            "pinch_table_clearance": hand.pinch_table_clearance, "width_margin": hand.width_margin,
             "grip_force": hand.default_grip_force, "torsion_radius": hand.torsion_radius, **settings,
         })
 

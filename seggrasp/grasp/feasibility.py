@@ -23,7 +23,7 @@ does, the part's geometry names why, in one sentence with measured numbers, the 
 5. it lies flat, raised but thin: nowhere does a pinch's pad find `pinch_min_band` of it above the fingertips
    (a blade resting on its handle: the vertical chords down through it, `tallest_side`);
 6. its narrowest section between facing surfaces (inward-normal chords inside the friction cone) is wider than
-   the widest contact distance the hand closes on (`Hand.stroke` - `AntipodalConfig.width_margin`);
+   the widest contact distance the hand closes on (`Hand.stroke` - `Hand.width_margin`);
 7. otherwise: no collision-free pose of the hand closes on it.
 
 The geometry is measured only for an infeasible request; a feasible one costs one footprint check of its best
