@@ -321,6 +321,7 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     strict = AntipodalConfig()
     hands = _hands()
     pinches = ", ".join(f"{1000 * hands[robot].pinch_table_clearance:.1f} mm for the {robot}" for robot in robots)
+    margins = ", ".join(f"{1000 * hands[robot].width_margin:.0f} mm for the {robot}" for robot in robots)
     lines = [
         "# Requests judged infeasible, executed anyway", "",
         f"`{command}`", "",
@@ -333,8 +334,8 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
         f"its best {MIN_REACH_DEPTH} the cell would execute, scored as a benchmark slot (lifted and the pads touched "
         "mostly the part). The relaxed sampler, against the strict one: a pinch needs "
         f"{1000 * config.pinch_min_band:.1f} mm of pad on the part (strict {1000 * strict.pinch_min_band:.1f} mm); "
-        f"the contact distance may come within {1000 * config.width_margin:.0f} mm of the stroke (strict "
-        f"{1000 * strict.width_margin:.0f} mm); fingertips of a pinch {1000 * config.pinch_table_clearance:.1f} mm "
+        f"the contact distance may come within {1000 * config.width_margin:.0f} mm of the stroke (strict: the "
+        f"hand's, {margins}); fingertips of a pinch {1000 * config.pinch_table_clearance:.1f} mm "
         f"above the table (strict: the hand's, {pinches}) and the hand of an ordinary grasp "
         f"{1000 * config.table_clearance:.1f} mm (strict {1000 * strict.table_clearance:.1f} mm)"
         + (", the least the cell allows (`sim.grasp_primitive.GraspSettings`)" if clearance == "cell" else "")

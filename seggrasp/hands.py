@@ -2,7 +2,7 @@
 
 Everything the method and the twin know about a gripper comes from its `Hand`: the stroke, the pads, the box model
 of its fingers and body that the grasp sampler checks for collisions, the contact depths it tries along the pads,
-the grip force range and the finger speed. The grasp sampler, the pad footprint, the pinch and envelope poses, the
+its margins below the stroke and above the table, the grip force range and the finger speed. The grasp sampler, the pad footprint, the pinch and envelope poses, the
 ShapeGrasp baseline, the learned-generator adapter, the twin's drive, its grasp primitive, `check_reach` and the gym
 action space read it (`seggrasp.grasp`, `sim.gripper`, `sim.panda_hand`, `sim.cell`, `sim.env`).
 
