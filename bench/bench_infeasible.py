@@ -113,8 +113,9 @@ class Request:
         strict, broken = AntipodalConfig.for_hand(hand), []
         if self.share is not None and self.share < footprint_share:
             broken.append(f"pads' share {100 * self.share:.0f} % < {100 * footprint_share:.0f} %")
-        if self.width is not None and self.width > hand.stroke - strict.width_margin:
-            broken.append(f"width {1000 * self.width:.1f} mm > {1000 * (hand.stroke - strict.width_margin):.0f} mm")
+        widest = strict.widest_contact_distance(hand)
+        if self.width is not None and self.width > widest:
+            broken.append(f"width {1000 * self.width:.1f} mm > {1000 * widest:.0f} mm")
         if self.tip_clearance is not None and self.tip_clearance < strict.table_clearance:
             # a pose as low as a pinch: the pinch's limits hold for it
             if self.tip_clearance < strict.pinch_table_clearance:
@@ -320,8 +321,11 @@ def report(requests: list[Request], robots: list[str], command: str, seconds: fl
     config = relaxed_config(ROBOTIQ_2F85, ROBOTIQ_2F85.default_grip_force, clearance)
     strict = AntipodalConfig()
     hands = _hands()
-    pinches = ", ".join(f"{1000 * hands[robot].pinch_table_clearance:.1f} mm for the {robot}" for robot in robots)
-    margins = ", ".join(f"{1000 * hands[robot].width_margin:.0f} mm for the {robot}" for robot in robots)
+
+    def per_robot(metres: str, digits: int) -> str:  # a hand's number, in mm, for each robot
+        return ", ".join(f"{1000 * getattr(hands[robot], metres):.{digits}f} mm for the {robot}" for robot in robots)
+
+    pinches, margins = per_robot("pinch_table_clearance", 1), per_robot("width_margin", 0)
     lines = [
         "# Requests judged infeasible, executed anyway", "",
         f"`{command}`", "",

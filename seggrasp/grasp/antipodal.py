@@ -142,6 +142,10 @@ class AntipodalConfig:
         """The normal contact depths, then the pinch depths (the indices `_deepest_free_depths` returns)."""
         return np.asarray(self.contact_depths + self.pinch_contact_depths, dtype=np.float64)
 
+    def widest_contact_distance(self, hand: Hand) -> float:
+        """The widest contact distance (m) a grasp of `hand` may have: its stroke less `width_margin`."""
+        return hand.stroke - self.width_margin
+
     @property
     def torsion_limit(self) -> float:
         """Gravity torque (N m) about the grasp axis the pads' friction holds."""
@@ -252,7 +256,7 @@ class AntipodalSampler:
         # the footprint may be wider than the stroke; a pose from the sweep must meet surface facing its pads; a pinch
         # must touch the part over `pinch_min_band` of its pads
         facing = alignment >= np.cos(np.deg2rad(cfg.level_facing_deg))
-        fits = (widths <= self.gripper.stroke - cfg.width_margin) & (facing | ~from_sweep)
+        fits = (widths <= cfg.widest_contact_distance(self.gripper)) & (facing | ~from_sweep)
         pinch = np.flatnonzero(fits & (depth_index[free] >= len(cfg.contact_depths)))
         if len(pinch):
             bands = np.concatenate([
@@ -283,7 +287,7 @@ class AntipodalSampler:
         points, faces = _surface_samples(mesh, cfg, com, rng, draw)
         p, q, n_p, n_q = opposite_contacts(mesh, points, face_normals[faces], face_normals)
         width = np.linalg.norm(q - p, axis=1)
-        ok = (width >= cfg.min_width) & (width <= self.gripper.stroke - cfg.width_margin)
+        ok = (width >= cfg.min_width) & (width <= cfg.widest_contact_distance(self.gripper))
         axis = np.zeros_like(p)
         axis[ok] = (q[ok] - p[ok]) / width[ok, None]
         half_angle = float(np.arctan(cfg.friction_coefficient))

@@ -166,7 +166,7 @@ def _reason(
         return (f"{name}: lies flat, at most {1000 * side:.1f} mm of it above a pinch's fingertips "
                 f"({1000 * config.pinch_table_clearance:.1f} mm above the table) wherever a pad would touch its "
                 f"side; a fingertip pinch needs {1000 * config.pinch_min_band:.1f} mm of pad on the part")
-    widest = hand.stroke - config.width_margin
+    widest = config.widest_contact_distance(hand)
     section = narrowest_section(mesh, faces, config)
     if section is not None and section > widest:
         return (f"{name}: narrowest section {1000 * section:.0f} mm, wider than the {1000 * widest:.0f} mm the "

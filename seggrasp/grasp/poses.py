@@ -75,7 +75,7 @@ def envelope_poses(
     fits the stroke, gets a pose at its middle, halfway up it or as low as the deepest pinch reaches. A hole narrower
     than a finger does not split a cluster: the pads then close on its outer walls."""
     up = plane[:3]
-    reach = gripper.stroke - cfg.width_margin
+    reach = cfg.widest_contact_distance(gripper)
     half_y = max(box[2] for box in gripper.finger_boxes)
     split_gap = max(box[1] for box in gripper.finger_boxes) + gripper.pre_grasp_margin
     # no lower than the deepest pinch reaches with its fingertips clear (without pinches, no lower than halfway up)
