@@ -212,3 +212,13 @@ def test_learned_adapter_converts_frames_and_filters() -> None:
     assert np.allclose(grasps.contacts[0], [[-0.02, 0, 0], [0.02, 0, 0]])
     with pytest.raises(ValueError, match="predict"):
         LearnedGraspGenerator(object())
+
+
+def test_a_meshs_pad_surface_is_sampled_once_and_anew_once_the_mesh_moves() -> None:
+    mesh = trimesh.creation.box((0.10, 0.010, 0.010))
+    first, again = PadFootprint().on(mesh), PadFootprint(margin=0.0).on(mesh)  # margin does not change the sample
+    assert again.points is first.points and not first.points.flags.writeable
+    mesh.apply_translation([0.0, 0.0, 0.05])
+    moved = PadFootprint().on(mesh)
+    assert moved.points is not first.points
+    np.testing.assert_allclose(moved.points[:, 2].mean(), first.points[:, 2].mean() + 0.05, atol=1e-3)

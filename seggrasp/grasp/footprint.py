@@ -17,6 +17,7 @@ of that end (`PadReading.holds`).
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -27,6 +28,10 @@ from scipy.spatial import cKDTree
 from seggrasp.grasp.pads import pad_touches
 from seggrasp.grasp.types import GraspSet
 from seggrasp.hands import ROBOTIQ_2F85, Hand
+
+#: How many meshes' even surface samples `PadSurface` keeps (a plan reads the same mesh's footprint several times).
+SAMPLES_KEPT = 8
+_samples: OrderedDict[tuple[int, int, int], tuple[np.ndarray, np.ndarray, cKDTree]] = OrderedDict()
 
 
 def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
@@ -87,8 +92,7 @@ class PadSurface:
         self.footprint = footprint
         self.mesh = mesh
         count = int(np.clip(mesh.area / footprint.point_spacing**2, footprint.min_points, footprint.max_points))
-        self.points, self.point_faces = trimesh.sample.sample_surface_even(mesh, count, seed=footprint.seed)
-        self._tree = cKDTree(self.points)
+        self.points, self.point_faces, self._tree = _even_samples(mesh, count, footprint.seed)
 
     def touched_faces(self, grasps: GraspSet) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per grasp, the mesh face of every sample point the -x pad and the +x pad close on (one entry per point,
@@ -178,3 +182,19 @@ class PadSurface:
         the smaller of its shares under the footprint and where it first lands (`read`)."""
         reading = self.read(grasps, is_part)
         return np.minimum(reading.under, reading.landed)
+
+
+def _even_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray, cKDTree]:
+    """`count` points sampled evenly on `mesh` (seeded), their faces and their k-d tree; the last `SAMPLES_KEPT`
+    are kept by the mesh's content, so a mesh changed in place is sampled anew. The arrays are shared: read only."""
+    key = (hash(mesh), count, seed)
+    if key in _samples:
+        _samples.move_to_end(key)
+        return _samples[key]
+    points, faces = trimesh.sample.sample_surface_even(mesh, count, seed=seed)
+    points.flags.writeable = faces.flags.writeable = False
+    _samples[key] = points, faces, cKDTree(points)
+    if len(_samples) > SAMPLES_KEPT:
+        _samples.popitem(last=False)
+    return _samples[key]
+
