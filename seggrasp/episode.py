@@ -493,8 +493,9 @@ class Episode:
 
     def feasibility(self, plan: PartPlan, indices: Sequence[int]) -> dict[int, Feasibility]:
         """Per prompt index, whether the cell's hand can hold the part with one of the episode's grasp candidates
-        (`seggrasp.grasp.feasibility`): the true part when there is ground truth (judged once per prompt), else the
-        part `plan` selects grasps on."""
+        (`seggrasp.grasp.feasibility`) or, where none of them does, with one of those drawn on the part itself
+        (`part_grasps`, which the plan then tops up with): the true part when there is ground truth (judged once per
+        prompt), else the part `plan` selects grasps on."""
         o = self.observation
         plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
         config = self.generator.config if isinstance(self.generator, AntipodalSampler) else \
@@ -502,14 +503,20 @@ class Episode:
 
         com, mass = self._weight()
 
-        def judge(requests: list[int], labels: np.ndarray) -> dict[int, Feasibility]:
-            if not requests:
-                return {}
-            return judge_requests(requests, self.context.prompts, self.hand, config, o.mesh, labels, self.grasps(),
+        def judge_on(requests: list[int], labels: np.ndarray, grasps: GraspSet) -> dict[int, Feasibility]:
+            return judge_requests(requests, self.context.prompts, self.hand, config, o.mesh, labels, grasps,
                                   self.footprint, plane, com, mass)
 
+        def judge(requests: list[int], labels: np.ndarray) -> dict[int, Feasibility]:
+            judged = judge_on(requests, labels, self.grasps()) if requests else {}
+            if isinstance(self.generator, AntipodalSampler):
+                for k in [k for k in requests if not judged[k].feasible and (labels == k).any()]:
+                    drawn = GraspSet.concatenate([self.grasps(), self.part_grasps(labels == k)])
+                    judged[k] = judge_on([k], labels, drawn)[k]
+            return judged
+
         if self.truth_on_mesh is None:
-            return judge(list(indices), plan.selection_labels)
+            return judge(list(indices), np.asarray(plan.selection_labels))
         missing = [k for k in dict.fromkeys(indices) if k not in self._true_feasibility]
         self._true_feasibility.update(judge(missing, self.truth_on_mesh))
         return {k: self._true_feasibility[k] for k in indices}

@@ -338,6 +338,23 @@ def test_a_part_too_few_candidates_hold_gets_candidates_sampled_on_it(box_with_k
     assert sampler.calls == {"everywhere": 1, "on a part": 1}  # the knob's candidates are sampled once
 
 
+def test_a_part_the_whole_draw_misses_is_judged_on_its_own_draw(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
+    sampler = CountingSampler(AntipodalConfig(n_surface_samples=40, near_com_fraction=0.0, envelope_centres=0))
+    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    oracle = episode.plan("oracle")
+    surface = episode.footprint.on(mesh)
+    everywhere = episode.grasps()
+    ranked = everywhere.subset(select_per_prompt(everywhere, mesh, labels, 2, len(everywhere))[1])
+    assert not surface.holds(ranked, labels == 1).any()  # 40 samples over the box: none of the knob's holds
+    judged = episode.feasibility(oracle, [0, 1])
+    assert judged[0].feasible and sampler.calls == {"everywhere": 1, "on a part": 1}
+    assert judged[1].feasible  # the knob's own draw holds it
+    slots = episode.slots(oracle, ["knob"])
+    assert all(s.grasp is not None for s in slots[:3])  # and its slots are filled from that draw
+
+
 class KnobFirstPolicy:
     """A part policy that ranks, for every prompt, the candidates whose contacts lie on the knob first."""
 

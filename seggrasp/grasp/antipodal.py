@@ -59,6 +59,7 @@ class AntipodalConfig:
     """Sampler parameters. `friction_coefficient` sets the friction-cone half-angle atan(mu)."""
 
     n_surface_samples: int = 6000
+    part_draw_samples: int = 2  # times n_surface_samples a draw on a part (`on_faces`) takes: a thin part's few holds
     n_approaches: int = 8
     near_com_fraction: float = 0.5  # of the surface samples drawn near the centre of mass
     near_com_scale: float = 0.05  # m
@@ -113,8 +114,8 @@ class AntipodalConfig:
     def __post_init__(self) -> None:
         if self.friction_coefficient <= 0:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
-        if self.n_surface_samples < 1 or self.n_approaches < 1:
-            raise ValueError("n_surface_samples and n_approaches must be at least 1")
+        if min(self.n_surface_samples, self.n_approaches, self.part_draw_samples) < 1:
+            raise ValueError("n_surface_samples, n_approaches and part_draw_samples must be at least 1")
         for name in ("contact_depths", "pinch_contact_depths"):
             depths = getattr(self, name)
             if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
@@ -181,8 +182,8 @@ class AntipodalSampler:
 
         `center_of_mass` (mesh frame) and `mass` (kg) feed the gravity-torque term; None takes the mesh's
         uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`.
-        `on_faces` (boolean, one per face) draws the first contacts on those faces and on the faces within a pad's
-        length of them only, at least half on the faces themselves (a part with too few grasps gets more of its
+        `on_faces` (boolean, one per face) draws `part_draw_samples` times the first contacts on those faces and on
+        the faces within a pad's length of them only, at least half on the faces themselves (a part with too few grasps gets more of its
         own: a level pose from a pair on the neighbouring stem slides its pads down onto a wine glass's foot), and
         leaves out the envelope poses, which do not start from a contact."""
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
@@ -431,14 +432,16 @@ def _surface_samples(
     mesh: trimesh.Trimesh, cfg: AntipodalConfig, com: np.ndarray, rng: np.random.Generator,
     draw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Area-weighted surface points (each face's area times its `draw` weight, when given); `near_com_fraction` of
+    """Area-weighted surface points, `n_surface_samples` of them (`part_draw_samples` times as many with face
+    weights `draw`: each face's area times its weight); `near_com_fraction` of
     them drawn with the face weights also falling off with the distance from the centre of mass (scale
     `near_com_scale`), where the grasps that hold lie (all of them area-weighted when no drawn face lies near it)."""
     area = mesh.area_faces if draw is None else mesh.area_faces * draw
+    count = cfg.n_surface_samples * (1 if draw is None else cfg.part_draw_samples)
     distance = np.linalg.norm(mesh.triangles_center - com, axis=1)
     weight = area * np.exp(-((distance / cfg.near_com_scale) ** 2))
-    n_near = int(round(cfg.near_com_fraction * cfg.n_surface_samples)) if weight.sum() > 0 else 0
-    points, faces = trimesh.sample.sample_surface(mesh, cfg.n_surface_samples - n_near, face_weight=area,
+    n_near = int(round(cfg.near_com_fraction * count)) if weight.sum() > 0 else 0
+    points, faces = trimesh.sample.sample_surface(mesh, count - n_near, face_weight=area,
                                                   seed=int(rng.integers(2**31)))
     if n_near == 0:
         return points, faces
