@@ -183,9 +183,9 @@ class AntipodalSampler:
         `center_of_mass` (mesh frame) and `mass` (kg) feed the gravity-torque term; None takes the mesh's
         uniform-density centre of mass (what the real cell uses for a perceived object) and `default_mass`.
         `on_faces` (boolean, one per face) draws `part_draw_samples` times the first contacts on those faces and on
-        the faces within a pad's length of them only, at least half on the faces themselves (a part with too few grasps gets more of its
-        own: a level pose from a pair on the neighbouring stem slides its pads down onto a wine glass's foot), and
-        leaves out the envelope poses, which do not start from a contact."""
+        the faces within a pad's length of them only, at least half on the faces themselves (a part with too few
+        grasps gets more of its own: a level pose from a pair on the neighbouring stem slides its pads down onto a
+        wine glass's foot), and leaves out the envelope poses, which do not start from a contact."""
         if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
             raise ValueError("AntipodalSampler needs a non-empty trimesh.Trimesh")
         cfg = self.config
@@ -249,8 +249,8 @@ class AntipodalSampler:
         envelope_index = np.flatnonzero(is_envelope)
         for start in range(0, len(envelope_index), COLLISION_CHUNK):
             chunk = envelope_index[start : start + COLLISION_CHUNK]
-            contacts[chunk] = pressed_centres(poses[chunk], openings[chunk], cloud, cfg.pad_half_width, cfg.pad_half_length,
-                                            cfg.pinch_band_tolerance)
+            contacts[chunk] = pressed_centres(poses[chunk], openings[chunk], cloud, cfg.pad_half_width,
+                                              cfg.pad_half_length, cfg.pinch_band_tolerance)
         half_angle = float(np.arctan(cfg.friction_coefficient))
         pose_antipodality[is_envelope] = np.clip(
             1.0 - np.arccos(np.clip(alignment[is_envelope], -1.0, 1.0)) / half_angle, 0.0, 1.0)

@@ -1,18 +1,18 @@
 """What lies under a grasp's pads: the faces nearest its contacts, and the surface each pad closes on.
 
-A grasp's two contact points say little about what its pads (`Hand.pad_half_width` x `pad_half_length`) will press on. `PadFootprint` finds, on a
-dense even sample of the mesh, the surface each pad touches when it closes from the pre-grasp opening: the points
-its sweep holds within `tolerance` of its first touch (`seggrasp.grasp.pads.pad_touches`), with the pad widened
-by `margin` on every side, because a neighbouring part that stands proud within a few millimetres of the pad's edge
-takes the grip once the pose is a little off or the object settles in the fingers (a wine glass held by its stem
-just under the bowl presses on the bowl, not on the stem). The share of a part (or the mean of any per-face value)
-over those points, which sample the surface evenly by area, says how much of what each pad presses on is that part.
-A rigid finger, though, pushes only on what it first lands on: `first_touch` reads the part's share there
-(within `first_touch_tolerance`, the fingertip beyond the pad included but holding nothing), and `part_shares`, the
-smaller of the two, is what selection and the feasibility judgement compare with `min_share` (a kettle's body
-bulges under the lid's rim, and only the fingertips' ends reach it). `first_touch` also reads how far into the pad
-from its fingertip end that touch reaches: a hand's pad holds nothing it lands on only within `Hand.pad_end_margin`
-of that end (`PadReading.holds`).
+A grasp's two contact points say little about what its pads (`Hand.pad_half_width` x `pad_half_length`) will press
+on. `PadFootprint` finds, on a dense even sample of the mesh, the surface each pad touches when it closes from the
+pre-grasp opening: the points its sweep holds within `tolerance` of its first touch
+(`seggrasp.grasp.pads.pad_touches`), with the pad widened by `margin` on every side, because a neighbouring part
+that stands proud within a few millimetres of the pad's edge takes the grip once the pose is a little off or the
+object settles in the fingers (a wine glass held by its stem just under the bowl presses on the bowl, not on the
+stem). The share of a part (or the mean of any per-face value) over those points, which sample the surface evenly
+by area, says how much of what each pad presses on is that part. A rigid finger, though, pushes only on what it
+first lands on: `first_touch` reads the part's share there (within `first_touch_tolerance`, the fingertip beyond
+the pad included but holding nothing), and `part_shares`, the smaller of the two, is what selection and the
+feasibility judgement compare with `min_share` (a kettle's body bulges under the lid's rim, and only the
+fingertips' ends reach it). `first_touch` also reads how far into the pad from its fingertip end that touch
+reaches: a hand's pad holds nothing it lands on only within `Hand.pad_end_margin` of that end (`PadReading.holds`).
 """
 
 from __future__ import annotations
@@ -197,4 +197,3 @@ def _even_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndar
     if len(_samples) > SAMPLES_KEPT:
         _samples.popitem(last=False)
     return _samples[key]
-
