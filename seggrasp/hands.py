@@ -4,7 +4,8 @@ Everything the method and the twin know about a gripper comes from its `Hand`: t
 of its fingers and body that the grasp sampler checks for collisions, the contact depths it tries along the pads,
 its margins below the stroke and above the table, the grip force range and the finger speed. The grasp sampler,
 the pad footprint, the pinch and envelope poses, the ShapeGrasp baseline, the learned-generator adapter, the twin's
-drive, its grasp primitive, `check_reach` and the gym action space read it (`seggrasp.grasp`, `sim.gripper`, `sim.panda_hand`, `sim.cell`, `sim.env`).
+drive, its grasp primitive, `check_reach` and the gym action space read it (`seggrasp.grasp`, `sim.gripper`,
+`sim.panda_hand`, `sim.cell`, `sim.env`).
 
 Gripper frame (docs/design.md section 3): z = approach, x = closing direction (finger to finger), origin between the
 pad centres with the fingers open. Box models are in that frame, in metres.

@@ -433,9 +433,9 @@ def _surface_samples(
     draw: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Area-weighted surface points, `n_surface_samples` of them (`part_draw_samples` times as many with face
-    weights `draw`: each face's area times its weight); `near_com_fraction` of
-    them drawn with the face weights also falling off with the distance from the centre of mass (scale
-    `near_com_scale`), where the grasps that hold lie (all of them area-weighted when no drawn face lies near it)."""
+    weights `draw`: each face's area times its weight); `near_com_fraction` of them drawn with the face weights also
+    falling off with the distance from the centre of mass (scale `near_com_scale`), where the grasps that hold lie
+    (all of them area-weighted when no drawn face lies near it)."""
     area = mesh.area_faces if draw is None else mesh.area_faces * draw
     count = cfg.n_surface_samples * (1 if draw is None else cfg.part_draw_samples)
     distance = np.linalg.norm(mesh.triangles_center - com, axis=1)

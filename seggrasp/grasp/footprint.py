@@ -17,7 +17,7 @@ reaches: a hand's pad holds nothing it lands on only within `Hand.pad_end_margin
 
 from __future__ import annotations
 
-from collections import OrderedDict
+import functools
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -31,7 +31,6 @@ from seggrasp.hands import ROBOTIQ_2F85, Hand
 
 #: How many meshes' even surface samples `PadSurface` keeps (a plan reads the same mesh's footprint several times).
 SAMPLES_KEPT = 8
-_samples: OrderedDict[tuple[int, int, int], tuple[np.ndarray, np.ndarray, cKDTree]] = OrderedDict()
 
 
 def contact_faces(grasps: GraspSet, mesh: trimesh.Trimesh) -> np.ndarray:
@@ -184,16 +183,11 @@ class PadSurface:
         return np.minimum(reading.under, reading.landed)
 
 
+@functools.lru_cache(maxsize=SAMPLES_KEPT)
 def _even_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray, cKDTree]:
-    """`count` points sampled evenly on `mesh` (seeded), their faces and their k-d tree; the last `SAMPLES_KEPT`
-    are kept by the mesh's content, so a mesh changed in place is sampled anew. The arrays are shared: read only."""
-    key = (hash(mesh), count, seed)
-    if key in _samples:
-        _samples.move_to_end(key)
-        return _samples[key]
+    """`count` points sampled evenly on `mesh` (seeded), their faces and their k-d tree. Kept for the last
+    `SAMPLES_KEPT` meshes: trimesh hashes a mesh by its content, so a mesh changed in place is sampled anew. The
+    arrays are shared: read only."""
     points, faces = trimesh.sample.sample_surface_even(mesh, count, seed=seed)
     points.flags.writeable = faces.flags.writeable = False
-    _samples[key] = points, faces, cKDTree(points)
-    if len(_samples) > SAMPLES_KEPT:
-        _samples.popitem(last=False)
-    return _samples[key]
+    return points, faces, cKDTree(points)
