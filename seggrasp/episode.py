@@ -46,7 +46,7 @@ from seggrasp.grasp import AntipodalSampler, GraspGenerator, GraspSet, select_pe
 from seggrasp.grasp.antipodal import AntipodalConfig
 from seggrasp.grasp.clearance import clear_of
 from seggrasp.grasp.feasibility import Feasibility, judge_requests
-from seggrasp.grasp.footprint import PadFootprint
+from seggrasp.grasp.footprint import PadFootprint, contact_faces
 from seggrasp.grasp.select import TOP_K
 from seggrasp.hands import Hand
 from seggrasp.labels import prompt_index
@@ -425,14 +425,14 @@ class Episode:
             self._grasps = self._generate()
         return self._grasps
 
-    def _generate(self, **part) -> GraspSet:
-        """The generator's grasps on the planning mesh with the episode's seed, table and mass (`part`: the
-        sampler's `on_faces`)."""
+    def _generate(self, seed: int | None = None, **part) -> GraspSet:
+        """The generator's grasps on the planning mesh with `seed` (default: the episode's), its table and mass
+        (`part`: the sampler's `on_faces`)."""
         o = self.observation
         plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
         com, mass = self._weight()
-        return self.generator.generate(o.mesh, seed=self.settings.seed, table_plane=plane, center_of_mass=com,
-                                       mass=mass, **part)
+        seed = self.settings.seed if seed is None else seed
+        return self.generator.generate(o.mesh, seed=seed, table_plane=plane, center_of_mass=com, mass=mass, **part)
 
     def _weight(self) -> tuple[np.ndarray | None, float | None]:
         """The object's centre of mass (planning mesh's frame) and mass as planning knows them. The context's centre
@@ -460,10 +460,24 @@ class Episode:
 
     def part_grasps(self, is_part: np.ndarray) -> GraspSet:
         """Candidates whose first contact is drawn on or next to the faces `is_part` marks (`AntipodalSampler`'s
-        `on_faces`; object frame; sampled once per part with the episode's seed)."""
+        `on_faces`; object frame), once per part: drawn with the episode's seed, then with seeds derived from it,
+        until top-k of them hold the part (`PadSurface.holds`) or `AntipodalConfig.part_draw_rounds` draws are in."""
         key = np.packbits(is_part).tobytes()
         if key not in self._part_grasps:
-            self._part_grasps[key] = self._generate(on_faces=is_part)
+            mesh, top_k = self.observation.mesh, self.settings.top_k
+            surface = self.footprint.on(mesh)
+            draws: list[GraspSet] = []
+            holding = 0
+            for draw in range(self.generator.config.part_draw_rounds):
+                seed = self.settings.seed if draw == 0 else \
+                    int(np.random.SeedSequence([self.settings.seed, draw]).generate_state(1)[0])
+                grasps = self._generate(seed, on_faces=is_part)
+                draws.append(grasps)
+                on_part = grasps.subset(np.flatnonzero(is_part[contact_faces(grasps, mesh)].all(axis=1)))
+                holding += int(surface.holds(on_part, is_part).sum())
+                if holding >= top_k:
+                    break
+            self._part_grasps[key] = GraspSet.concatenate(draws)
         return self._part_grasps[key]
 
     def target_indices(self, targets: Sequence[str] | None) -> list[int]:

@@ -355,6 +355,27 @@ def test_a_part_the_whole_draw_misses_is_judged_on_its_own_draw(box_with_knob) -
     assert all(s.grasp is not None for s in slots[:3])  # and its slots are filled from that draw
 
 
+def test_a_part_one_draw_leaves_short_is_drawn_again_until_top_k_hold(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
+    config = AntipodalConfig(n_surface_samples=20, part_draw_samples=1, part_draw_rounds=6, envelope_centres=0)
+    sampler = CountingSampler(config)
+    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    surface = episode.footprint.on(mesh)
+    first = sampler.generate(mesh, seed=0, table_plane=np.array([0.0, 0.0, 1.0, 0.0]), on_faces=labels == 1)
+    sampler.calls["on a part"] = 0
+    assert surface.holds(first, labels == 1).sum() < 10  # 20 samples on and around the knob: too few of its holds
+    drawn = episode.part_grasps(labels == 1)
+    rounds = sampler.calls["on a part"]
+    assert 1 < rounds <= config.part_draw_rounds
+    assert np.array_equal(drawn.poses[: len(first)], first.poses)  # the first draw is the episode's seed's
+    holding = int(surface.holds(drawn, labels == 1).sum())
+    assert holding >= 10 or rounds == config.part_draw_rounds
+    assert len(np.unique(np.round(drawn.contacts.reshape(len(drawn), -1), 6), axis=0)) > len(first)  # new draws
+    episode.part_grasps(labels == 1)
+    assert sampler.calls["on a part"] == rounds  # drawn once per part
+
+
 class KnobFirstPolicy:
     """A part policy that ranks, for every prompt, the candidates whose contacts lie on the knob first."""
 

@@ -60,6 +60,7 @@ class AntipodalConfig:
 
     n_surface_samples: int = 6000
     part_draw_samples: int = 2  # times n_surface_samples a draw on a part (`on_faces`) takes: a thin part's few holds
+    part_draw_rounds: int = 4  # draws on a part at most, until top-k of its grasps hold it (`Episode.part_grasps`)
     n_approaches: int = 8
     near_com_fraction: float = 0.5  # of the surface samples drawn near the centre of mass
     near_com_scale: float = 0.05  # m
@@ -114,8 +115,8 @@ class AntipodalConfig:
     def __post_init__(self) -> None:
         if self.friction_coefficient <= 0:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
-        if min(self.n_surface_samples, self.n_approaches, self.part_draw_samples) < 1:
-            raise ValueError("n_surface_samples, n_approaches and part_draw_samples must be at least 1")
+        if min(self.n_surface_samples, self.n_approaches, self.part_draw_samples, self.part_draw_rounds) < 1:
+            raise ValueError("n_surface_samples, n_approaches, part_draw_samples and part_draw_rounds must be at least 1")
         for name in ("contact_depths", "pinch_contact_depths"):
             depths = getattr(self, name)
             if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
