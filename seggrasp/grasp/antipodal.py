@@ -116,7 +116,7 @@ class AntipodalConfig:
         if self.friction_coefficient <= 0:
             raise ValueError(f"friction_coefficient must be positive, got {self.friction_coefficient}")
         if min(self.n_surface_samples, self.n_approaches, self.part_draw_samples, self.part_draw_rounds) < 1:
-            raise ValueError("n_surface_samples, n_approaches, part_draw_samples and part_draw_rounds must be at least 1")
+            raise ValueError("n_surface_samples, n_approaches, part_draw_samples, part_draw_rounds must be >= 1")
         for name in ("contact_depths", "pinch_contact_depths"):
             depths = getattr(self, name)
             if (name == "contact_depths" and not depths) or any(abs(d) >= self.pad_half_length for d in depths):
