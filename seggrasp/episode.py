@@ -331,7 +331,9 @@ class Episode:
         self._truth_on_mesh: np.ndarray | None = None
         self._segmenter: ObjectSegmenter | None = None
         self._grasps: GraspSet | None = None
-        self._part_grasps: dict[bytes, GraspSet] = {}  # `part_grasps` per part (its faces, packed)
+        # `part_grasps` per part (its faces, packed): its first draw, and all its draws
+        self._first_part_draw: dict[bytes, GraspSet] = {}
+        self._part_grasps: dict[bytes, GraspSet] = {}
         self._true_feasibility: dict[int, Feasibility] = {}
         self._reach: dict[str, bool] = {}
         self._others: np.ndarray | None = None  # the other objects' perceived points (world), among others
@@ -458,26 +460,28 @@ class Episode:
                 more.append(self.part_grasps(is_part))
         return GraspSet.concatenate([grasps, *more])
 
-    def part_grasps(self, is_part: np.ndarray) -> GraspSet:
+    def part_grasps(self, is_part: np.ndarray, fill: bool = True) -> GraspSet:
         """Candidates whose first contact is drawn on or next to the faces `is_part` marks (`AntipodalSampler`'s
-        `on_faces`; object frame), once per part: drawn with the episode's seed, then with seeds derived from it,
-        until top-k of them hold the part (`PadSurface.holds`) or `AntipodalConfig.part_draw_rounds` draws are in."""
+        `on_faces`; object frame; each draw made once per part): the draw with the episode's seed, and with `fill`
+        the draws with seeds derived from it that follow until top-k of them hold the part (`PadSurface.holds`) or
+        `AntipodalConfig.part_draw_rounds` draws are in. The plan fills its slots from all of them; the feasibility
+        judgement reads the first only, because more draws turn up lone holds the plan does not rank first (the
+        UR5's gooseneck kettle body, held only across its top)."""
         key = np.packbits(is_part).tobytes()
+        if key not in self._first_part_draw:
+            self._first_part_draw[key] = self._generate(on_faces=is_part)
+        if not fill:
+            return self._first_part_draw[key]
         if key not in self._part_grasps:
-            mesh, top_k = self.observation.mesh, self.settings.top_k
-            surface = self.footprint.on(mesh)
-            draws: list[GraspSet] = []
-            holding = 0
-            for draw in range(self.generator.config.part_draw_rounds):
-                seed = self.settings.seed if draw == 0 else \
-                    int(np.random.SeedSequence([self.settings.seed, draw]).generate_state(1)[0])
-                grasps = self._generate(seed, on_faces=is_part)
-                draws.append(grasps)
-                on_part = grasps.subset(np.flatnonzero(is_part[contact_faces(grasps, mesh)].all(axis=1)))
-                holding += int(surface.holds(on_part, is_part).sum())
-                if holding >= top_k:
+            mesh, surface = self.observation.mesh, self.footprint.on(self.observation.mesh)
+            drawn = self._first_part_draw[key]
+            for draw in range(1, self.generator.config.part_draw_rounds):
+                on_part = drawn.subset(np.flatnonzero(is_part[contact_faces(drawn, mesh)].all(axis=1)))
+                if surface.holds(on_part, is_part).sum() >= self.settings.top_k:
                     break
-            self._part_grasps[key] = GraspSet.concatenate(draws)
+                seed = int(np.random.SeedSequence([self.settings.seed, draw]).generate_state(1)[0])
+                drawn = GraspSet.concatenate([drawn, self._generate(seed, on_faces=is_part)])
+            self._part_grasps[key] = drawn
         return self._part_grasps[key]
 
     def target_indices(self, targets: Sequence[str] | None) -> list[int]:
@@ -508,8 +512,8 @@ class Episode:
     def feasibility(self, plan: PartPlan, indices: Sequence[int]) -> dict[int, Feasibility]:
         """Per prompt index, whether the cell's hand can hold the part with one of the episode's grasp candidates
         (`seggrasp.grasp.feasibility`) or, where none of them does, with one of those drawn on the part itself
-        (`part_grasps`, which the plan then tops up with): the true part when there is ground truth (judged once per
-        prompt), else the part `plan` selects grasps on."""
+        (`part_grasps`' first draw, which the plan then tops up with): the true part when there is ground truth
+        (judged once per prompt), else the part `plan` selects grasps on."""
         o = self.observation
         plane = table_plane_in_object_frame(o.mesh, o.T_world_obj)
         config = self.generator.config if isinstance(self.generator, AntipodalSampler) else \
@@ -525,7 +529,7 @@ class Episode:
             judged = judge_on(requests, labels, self.grasps()) if requests else {}
             if isinstance(self.generator, AntipodalSampler):
                 for k in [k for k in requests if not judged[k].feasible and (labels == k).any()]:
-                    drawn = GraspSet.concatenate([self.grasps(), self.part_grasps(labels == k)])
+                    drawn = GraspSet.concatenate([self.grasps(), self.part_grasps(labels == k, fill=False)])
                     judged[k] = judge_on([k], labels, drawn)[k]
             return judged
 

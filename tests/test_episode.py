@@ -374,6 +374,21 @@ def test_a_part_one_draw_leaves_short_is_drawn_again_until_top_k_hold(box_with_k
     assert len(np.unique(np.round(drawn.contacts.reshape(len(drawn), -1), 6), axis=0)) > len(first)  # new draws
     episode.part_grasps(labels == 1)
     assert sampler.calls["on a part"] == rounds  # drawn once per part
+    assert np.array_equal(episode.part_grasps(labels == 1, fill=False).poses, first.poses)
+
+
+def test_the_feasibility_judgement_reads_a_parts_first_draw_only(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
+    config = AntipodalConfig(n_surface_samples=20, part_draw_samples=1, part_draw_rounds=6, envelope_centres=0)
+    sampler = CountingSampler(config)
+    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    oracle = episode.plan("oracle")
+    episode.feasibility(oracle, [0, 1])
+    assert sampler.calls["on a part"] <= 2  # at most one draw on each part the first candidates miss
+    judged = sampler.calls["on a part"]
+    episode.slots(oracle)
+    assert sampler.calls["on a part"] > judged  # the plan draws on until its slots can be filled
 
 
 class KnobFirstPolicy:

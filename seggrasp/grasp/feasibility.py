@@ -2,7 +2,7 @@
 
 A request is feasible when one of the episode's grasp candidates (the sampler's set, which already keeps only
 poses whose width fits the stroke and whose fingers, palm and wrist clear the table and the object; for a part
-none of the first draw holds, the part's own draw too: `Episode.feasibility`) has both
+none of the first draw holds, the part's own first draw too: `Episode.feasibility`) has both
 planned contacts on faces of the part AND pads that hold it (`PadSurface.holds`): each presses on the part over at
 least the footprint's `min_share`, both of the surface under it and of what its face first lands on, and lands
 deeper into the pad than the hand's `pad_end_margin` (`seggrasp.grasp.select.select_per_prompt` with a
