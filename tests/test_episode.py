@@ -355,12 +355,19 @@ def test_a_part_the_whole_draw_misses_is_judged_on_its_own_draw(box_with_knob) -
     assert all(s.grasp is not None for s in slots[:3])  # and its slots are filled from that draw
 
 
-def test_a_part_one_draw_leaves_short_is_drawn_again_until_top_k_hold(box_with_knob) -> None:
+def short_draw_episode(box_with_knob) -> tuple[Episode, CountingSampler]:
+    """An oracle episode on the knobbed box whose draws take 20 samples: one draw on the knob leaves it short."""
     mesh, labels = box_with_knob
     context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
     config = AntipodalConfig(n_surface_samples=20, part_draw_samples=1, part_draw_rounds=6, envelope_centres=0)
     sampler = CountingSampler(config)
-    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    return Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler), sampler
+
+
+def test_a_part_one_draw_leaves_short_is_drawn_again_until_top_k_hold(box_with_knob) -> None:
+    mesh, labels = box_with_knob
+    episode, sampler = short_draw_episode(box_with_knob)
+    config = sampler.config
     surface = episode.footprint.on(mesh)
     first = sampler.generate(mesh, seed=0, table_plane=np.array([0.0, 0.0, 1.0, 0.0]), on_faces=labels == 1)
     sampler.calls["on a part"] = 0
@@ -378,11 +385,7 @@ def test_a_part_one_draw_leaves_short_is_drawn_again_until_top_k_hold(box_with_k
 
 
 def test_the_feasibility_judgement_reads_a_parts_first_draw_only(box_with_knob) -> None:
-    mesh, labels = box_with_knob
-    context = EpisodeContext("box_with_knob", "box", ["body", "knob"], scene_seed=0)
-    config = AntipodalConfig(n_surface_samples=20, part_draw_samples=1, part_draw_rounds=6, envelope_centres=0)
-    sampler = CountingSampler(config)
-    episode = Episode(OutOfReachCell(mesh, np.inf), context, None, GroundTruth(mesh, labels), generator=sampler)
+    episode, sampler = short_draw_episode(box_with_knob)
     oracle = episode.plan("oracle")
     episode.feasibility(oracle, [0, 1])
     assert sampler.calls["on a part"] <= 2  # at most one draw on each part the first candidates miss
