@@ -474,14 +474,20 @@ class Episode:
             return self._first_part_draw[key]
         if key not in self._part_grasps:
             mesh, surface = self.observation.mesh, self.footprint.on(self.observation.mesh)
-            drawn = self._first_part_draw[key]
+
+            def holding(grasps: GraspSet) -> int:  # those with both contacts on the part whose pads hold it
+                on_part = grasps.subset(np.flatnonzero(is_part[contact_faces(grasps, mesh)].all(axis=1)))
+                return int(surface.holds(on_part, is_part).sum())
+
+            draws = [self._first_part_draw[key]]
+            held = holding(draws[0])
             for draw in range(1, self.generator.config.part_draw_rounds):
-                on_part = drawn.subset(np.flatnonzero(is_part[contact_faces(drawn, mesh)].all(axis=1)))
-                if surface.holds(on_part, is_part).sum() >= self.settings.top_k:
+                if held >= self.settings.top_k:
                     break
                 seed = int(np.random.SeedSequence([self.settings.seed, draw]).generate_state(1)[0])
-                drawn = GraspSet.concatenate([drawn, self._generate(seed, on_faces=is_part)])
-            self._part_grasps[key] = drawn
+                draws.append(self._generate(seed, on_faces=is_part))
+                held += holding(draws[-1])
+            self._part_grasps[key] = GraspSet.concatenate(draws)
         return self._part_grasps[key]
 
     def target_indices(self, targets: Sequence[str] | None) -> list[int]:
