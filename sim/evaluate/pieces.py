@@ -53,14 +53,14 @@ def _members(piece: Path) -> dict[str, bytes]:
         raise ValueError(f"{piece}: not a readable piece ({exc})") from None
 
 
+def _tasks_of(trials: bytes) -> set[tuple[str, int]]:
+    """The (object, seed) tasks of a piece's trials.jsonl."""
+    return {(record["object_id"], seed_of(record)) for record in map(json.loads, trials.splitlines())}
+
+
 def packed_tasks(folder: Path) -> set[tuple[str, int]]:
     """The (object, seed) tasks the folder's pieces hold."""
-    tasks = set()
-    for piece in pieces_of(folder):
-        for line in _members(piece).get("trials.jsonl", b"").splitlines():
-            record = json.loads(line)
-            tasks.add((record["object_id"], seed_of(record)))
-    return tasks
+    return set().union(*(_tasks_of(_members(piece).get("trials.jsonl", b"")) for piece in pieces_of(folder)))
 
 
 def pack(run: Path, folder: Path) -> Path | None:
@@ -69,10 +69,9 @@ def pack(run: Path, folder: Path) -> Path | None:
     if not (run / "run.json").is_file():
         raise ValueError(f"{run} holds no run.json: not a run folder of `python -m sim.evaluate`")
     config = load_run(run)
-    settings = json.loads((run / "run.json").read_text())
     folder.mkdir(parents=True, exist_ok=True)
     kept = folder / "run.json"
-    if kept.exists() and json.loads(kept.read_text()) != settings:
+    if kept.exists() and load_run(folder) != config:
         raise ValueError(f"{kept} records another run than {run / 'run.json'}: pack each run into its own folder")
     recorded = recorded_index(run)
     done = packed_tasks(folder)
@@ -85,9 +84,8 @@ def pack(run: Path, folder: Path) -> Path | None:
     partial = piece.with_name(piece.name + ".partial")
     with tarfile.open(partial, "w:xz", preset=9) as archive:
         for name, key in KEYS.items():
-            lines = [json.dumps(record, separators=(",", ":")) + "\n" for record in read_unique(run / name, key)
-                     if (record["object_id"], seed_of(record)) in new]
-            data = "".join(lines).encode()
+            data = JsonLines.encode(record for record in read_unique(run / name, key)
+                                    if (record["object_id"], seed_of(record)) in new)
             member = tarfile.TarInfo(name)
             member.size = len(data)
             archive.addfile(member, io.BytesIO(data))
@@ -106,11 +104,14 @@ def unpack(folder: Path, run: Path) -> int:
         raise ValueError(f"{run} already holds {', '.join(held)}: unpack into a new folder")
     run.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(folder / "run.json", run / "run.json")
+    tasks = set()
     for piece in pieces_of(folder):
-        for name, data in _members(piece).items():
+        members = _members(piece)
+        tasks |= _tasks_of(members.get("trials.jsonl", b""))
+        for name, data in members.items():
             with open(run / name, "ab") as out:
                 out.write(data)
-    return len({(r["object_id"], seed_of(r)) for r in JsonLines(run / "trials.jsonl").read()})
+    return len(tasks)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -126,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "pack":
             piece = pack(args.run, args.pieces)
-            print(f"{piece}: {len(packed_tasks(args.pieces))} tasks packed in all" if piece else
+            print(f"{piece}: {len(_tasks_of(_members(piece)['trials.jsonl']))} tasks added" if piece else
                   f"{args.run} holds no finished task that {args.pieces} lacks: nothing packed")
         else:
             tasks = unpack(args.pieces, args.run)

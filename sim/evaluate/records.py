@@ -120,10 +120,15 @@ class JsonLines:
         """Append one record as one line, under an exclusive lock, flushed and fsynced before returning."""
         self.extend([record])
 
+    @staticmethod
+    def encode(records: Iterable[dict]) -> bytes:
+        """Records as the file's lines: one compact JSON object each."""
+        return b"".join((json.dumps(r, separators=(",", ":")) + "\n").encode("utf-8") for r in records)
+
     def extend(self, records: Iterable[dict]) -> None:
         """Append records, one line each, in one write under an exclusive lock, flushed and fsynced before
         returning (a writer killed during it leaves at most a torn last line)."""
-        data = b"".join((json.dumps(r, separators=(",", ":")) + "\n").encode("utf-8") for r in records)
+        data = self.encode(records)
         if not data:
             return
         self.path.parent.mkdir(parents=True, exist_ok=True)
