@@ -22,20 +22,10 @@ import sys
 import tarfile
 from pathlib import Path
 
-from sim.evaluate.records import (
-    RESULT_FILES,
-    JsonLines,
-    curve_key,
-    load_run,
-    read_unique,
-    seed_of,
-    segmentation_key,
-    trial_key,
-)
+from sim.evaluate.records import RESULT_FILES, RESULT_KEYS, JsonLines, load_run, read_unique, seed_of
 from sim.evaluate.runner import is_complete, recorded_index
 
 PIECE = re.compile(r"^piece-(\d{3})\.tar\.xz$")
-KEYS = {"trials.jsonl": trial_key, "segmentations.jsonl": segmentation_key, "curves.jsonl": curve_key}
 
 
 def pieces_of(folder: Path) -> list[Path]:
@@ -83,7 +73,7 @@ def pack(run: Path, folder: Path) -> Path | None:
     piece = folder / f"piece-{max(numbers, default=-1) + 1:03d}.tar.xz"
     partial = piece.with_name(piece.name + ".partial")
     with tarfile.open(partial, "w:xz", preset=9) as archive:
-        for name, key in KEYS.items():
+        for name, key in RESULT_KEYS.items():
             data = JsonLines.encode(record for record in read_unique(run / name, key)
                                     if (record["object_id"], seed_of(record)) in new)
             member = tarfile.TarInfo(name)

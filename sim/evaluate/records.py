@@ -23,7 +23,6 @@ from seggrasp.io import atomic_save_npz, atomic_write_bytes, atomic_write_json
 from sim.evaluate.config import DEFAULT_ROBOT, RESUME_KEYS, RunConfig
 
 LOG = logging.getLogger("sim.evaluate")
-RESULT_FILES = ("trials.jsonl", "segmentations.jsonl", "curves.jsonl")
 #: Errors of the file system rather than of one object: a task that meets one stops the run (the other tasks would
 #: meet it too), with what `error_message` says of it.
 STORAGE_ERRORS = {errno.ENOSPC: "the disk is full: free space, then --resume continues the run",
@@ -185,6 +184,11 @@ def segmentation_key(record: dict) -> tuple:
 
 def curve_key(record: dict) -> tuple:
     return (record["object_id"], seed_of(record), robot_of(record))
+
+
+#: The run's result files, each with the key that makes a record unique in it (`read_unique` keeps the first).
+RESULT_KEYS = {"trials.jsonl": trial_key, "segmentations.jsonl": segmentation_key, "curves.jsonl": curve_key}
+RESULT_FILES = tuple(RESULT_KEYS)
 
 
 def unique_records(records: Iterable[dict], key: Callable[[dict], tuple]) -> list[dict]:

@@ -19,7 +19,7 @@ from seggrasp.method import RECIPES
 from seggrasp.metrics import mean_over_categories, quaternion_variance
 from sim.evaluate.config import RunConfig, prompts_of
 from sim.evaluate.plots import write_plots
-from sim.evaluate.records import curve_key, read_unique, robot_of, segmentation_key, trial_key, writing
+from sim.evaluate.records import RESULT_KEYS, read_unique, robot_of, writing
 from sim.evaluate.stats import (
     CONFIDENCE,
     GRASP_METRICS,
@@ -434,8 +434,7 @@ def write_summary(config: RunConfig, out: Path, wall_time: float, crashes: list[
         return [r for r in records if r["object_id"] in wanted and int(r.get("seed", 0)) in config.seeds
                 and robot_of(r) == robot and (not by_method or r["method"] in config.methods)]
 
-    files = {name: read_unique(out / name, key) for name, key in
-             (("trials.jsonl", trial_key), ("segmentations.jsonl", segmentation_key), ("curves.jsonl", curve_key))}
+    files = {name: read_unique(out / name, key) for name, key in RESULT_KEYS.items()}
     trials = {robot: of_run(files["trials.jsonl"], robot) for robot in config.robots}
     segmentations = {robot: of_run(files["segmentations.jsonl"], robot) for robot in config.robots}
     systems = {robot: dict(summarise(trials[robot], segmentations[robot],
